@@ -1,0 +1,165 @@
+"""merge_maps: merge map_server maps offline (no roscore needed).
+
+    merge_maps [--confidence C] [--feature NAME] [--known-poses POSES.yaml [--legacy-cell-poses]]
+               [--output PREFIX] [--png FILE] [--transforms-json FILE] MAP.yaml...
+
+Writes PREFIX.pgm + PREFIX.yaml as map_saver does, a PNG preview (PREFIX.png unless --png), and with
+--transforms-json the placement of every map (the format of ../shared/eval/README.md). Exit code 2 and a one-line
+reason on bad input.
+
+POSES.yaml gives the pose of each map's frame in the world (metres, radians), by file name or in order:
+    poses: {map_00.yaml: [0.0, 0.0, 0.0], map_01.yaml: {x: 4.2, y: -1.0, yaw: 1.57}}
+    poses: [[0.0, 0.0, 0.0], [4.2, -1.0, 1.57]]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import time
+from typing import List, Optional, Sequence
+
+import yaml
+
+from . import transforms as tf
+from .features import FEATURE_TYPES
+from .known_poses import InitPose
+from .mapio import MapFileError, load_map, save_map, save_png
+from .pipeline import MergingPipeline
+from .settings import EstimationSettings
+
+log = logging.getLogger('rosout.multirobot_map_merge.cli')
+
+
+class UsageError(Exception):
+    """Bad input: reported as one line, exit code 2."""
+
+
+def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    defaults = EstimationSettings()
+    ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('maps', nargs='+', metavar='MAP.yaml')
+    ap.add_argument('--confidence', type=float, default=defaults.confidence,
+                    help='Brown-Lowe confidence a pair needs (default %(default)s; pairs are also verified)')
+    ap.add_argument('--feature', default=defaults.feature, choices=FEATURE_TYPES,
+                    help='keypoint detector (default %(default)s)')
+    ap.add_argument('--known-poses', metavar='POSES.yaml', help='merge at known initial poses instead of estimating')
+    ap.add_argument('--legacy-cell-poses', action='store_true',
+                    help='with --known-poses: the C++ 2.x semantics (x/y in cells, inverted, corner pivot)')
+    ap.add_argument('--output', default='merged', metavar='PREFIX', help='merged map PREFIX.pgm/.yaml')
+    ap.add_argument('--png', metavar='FILE', help='PNG preview (default PREFIX.png)')
+    ap.add_argument('--transforms-json', metavar='FILE', help='write each map\'s placement as JSON')
+    ap.add_argument('--threads', type=int, default=defaults.threads, help='pairs matched in parallel')
+    ap.add_argument('-v', '--verbose', action='store_true', help='log per-pair statistics')
+    return ap.parse_args(argv)
+
+
+def read_poses(path: str, maps: Sequence[str]) -> List[InitPose]:
+    try:
+        with open(path) as f:
+            doc = yaml.safe_load(f)
+    except (OSError, yaml.YAMLError) as e:
+        raise UsageError(f'cannot read poses file {path}: {e}'.splitlines()[0])
+    poses = doc.get('poses') if isinstance(doc, dict) else None
+    if isinstance(poses, list):
+        if len(poses) != len(maps):
+            raise UsageError(f'{path}: {len(poses)} poses for {len(maps)} maps')
+        entries = poses
+    elif isinstance(poses, dict):
+        entries = []
+        for m in maps:
+            entry = poses.get(m, poses.get(os.path.basename(m)))
+            if entry is None:
+                raise UsageError(f'{path}: no pose for {os.path.basename(m)}')
+            entries.append(entry)
+    else:
+        raise UsageError(f"{path}: expected 'poses:' with a list or a mapping of file name to pose")
+    out = []
+    for m, e in zip(maps, entries):
+        try:
+            if isinstance(e, dict):
+                out.append(InitPose(float(e.get('x', 0.0)), float(e.get('y', 0.0)), float(e.get('yaw', 0.0))))
+            else:
+                x, y, yaw = (float(v) for v in e)
+                out.append(InitPose(x, y, yaw))
+        except (TypeError, ValueError):
+            raise UsageError(f'{path}: pose of {os.path.basename(m)} is not [x, y, yaw] numbers: {e!r}')
+    return out
+
+
+def transforms_document(maps: Sequence[str], pipeline: MergingPipeline, estimate_ms: float, compose_ms: float):
+    entries = []
+    for path, t in zip(maps, pipeline.transforms):
+        if t is None:
+            entries.append({'file': path, 'included': False})
+        else:
+            x, y, yaw, scale = tf.params(t)
+            entries.append({'file': path, 'included': True,
+                            'transform': {'x': x, 'y': y, 'yaw': yaw, 'scale': scale}})
+    return {'maps': entries, 'reference': pipeline.reference, 'estimate_ms': estimate_ms, 'compose_ms': compose_ms}
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = EstimationSettings(feature=args.feature, confidence=args.confidence, threads=max(args.threads, 1))
+    try:
+        settings.validate()
+    except ValueError as e:
+        raise UsageError(str(e))
+    poses = read_poses(args.known_poses, args.maps) if args.known_poses else None
+    if args.legacy_cell_poses and poses is None:
+        raise UsageError('--legacy-cell-poses needs --known-poses')
+    try:
+        grids = [load_map(p) for p in args.maps]
+    except MapFileError as e:
+        raise UsageError(str(e))
+    print(f'merge_maps: {len(grids)} maps loaded', file=sys.stderr, flush=True)
+
+    pipeline = MergingPipeline(settings)
+    pipeline.feed(grids)
+    t0 = time.perf_counter()
+    if poses is not None:
+        pipeline.set_known_poses(poses, legacy=args.legacy_cell_poses)
+    else:
+        print(f'merge_maps: estimating transforms ({len(grids) * (len(grids) - 1) // 2} pairs)...',
+              file=sys.stderr, flush=True)
+        pipeline.estimate()
+    estimate_ms = (time.perf_counter() - t0) * 1000.0
+    merged = pipeline.compose('map')
+    compose_ms = pipeline.compose_seconds * 1000.0
+    placed = sum(t is not None for t in pipeline.transforms)
+    print(f'merge_maps: {placed} of {len(grids)} maps placed (estimate {estimate_ms:.0f} ms, '
+          f'compose {compose_ms:.0f} ms)', file=sys.stderr, flush=True)
+
+    for path in (args.output, args.png, args.transforms_json):
+        if path:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    if args.transforms_json:
+        with open(args.transforms_json, 'w') as f:
+            json.dump(transforms_document(args.maps, pipeline, estimate_ms, compose_ms), f, indent=1)
+    if merged is None:
+        print('merge_maps: nothing to merge: no map has a known cell', file=sys.stderr)
+        return 1
+    yaml_path, _ = save_map(merged, args.output)
+    png = save_png(merged, args.png or args.output + '.png')
+    print(f'merge_maps: wrote {yaml_path} and {png}', file=sys.stderr)
+    return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format='%(levelname)s %(message)s')
+    try:
+        return run(args)
+    except UsageError as e:
+        print(f'merge_maps: error: {e}', file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f'merge_maps: error: {e}'.splitlines()[0], file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

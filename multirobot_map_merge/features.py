@@ -1,0 +1,165 @@
+"""Stage 1 of estimation: per-grid preparation and feature detection.
+
+Each grid is cropped to its known part (hector-style canvases are mostly unknown), brought to the common working
+resolution, and described by keypoints + descriptors, its wall pixels and a nearest-wall lookup used by refinement
+and verification. Results are cached per grid content, so an unchanged grid is never processed twice.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from . import transforms as tf
+from .grid import Grid
+
+log = logging.getLogger('rosout.multirobot_map_merge.features')
+
+FEATURE_TYPES = ('akaze', 'orb', 'sift')
+CROP_MARGIN = 4  # cells kept around the known part, so features at its border see some context
+
+
+@dataclass
+class PreparedGrid:
+    """A grid ready for matching. Pixel coordinates are (x = column, y = row) of the working image."""
+    work: np.ndarray            # int8 working grid (-1/0/100), cropped and resampled
+    px_to_map: np.ndarray       # 3x3: working pixel centre -> metric point of the grid's own map frame
+    keypoints: np.ndarray       # (N, 2) float pixel coordinates
+    descriptors: Optional[np.ndarray]
+    walls: np.ndarray           # (M, 2) float pixel coordinates of occupied pixels
+    wall_distance: np.ndarray   # float32 distance (pixels) of every pixel to the nearest occupied pixel
+    nearest_wall: np.ndarray    # (H, W) index into `walls` of the nearest occupied pixel (-1 if none)
+    resolution: float           # working resolution (m/pixel)
+
+    @property
+    def known_pixels(self) -> int:
+        return int((self.work >= 0).sum())
+
+    def nearest(self, pts: np.ndarray):
+        """Nearest wall pixel and its distance for each point (distance inf outside the image or with no walls)."""
+        h, w = self.work.shape
+        x = np.rint(pts[:, 0]).astype(np.int64)
+        y = np.rint(pts[:, 1]).astype(np.int64)
+        inside = (x >= 0) & (y >= 0) & (x < w) & (y < h)
+        nn = np.zeros_like(pts)
+        dist = np.full(len(pts), np.inf)
+        if len(self.walls):
+            idx = self.nearest_wall[y[inside], x[inside]]
+            nn[inside] = self.walls[idx]
+            dist[inside] = np.hypot(*(nn[inside] - pts[inside]).T)
+        return nn, dist
+
+
+def crop_to_known(data: np.ndarray, margin: int = CROP_MARGIN):
+    """(row0, row1, col0, col1) of the known part plus a margin, or None if nothing is known."""
+    known = data >= 0
+    rows = np.flatnonzero(known.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(known[rows[0]:rows[-1] + 1].any(axis=0))
+    h, w = data.shape
+    return (max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h),
+            max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w))
+
+
+def resample(data: np.ndarray, scale: float) -> np.ndarray:
+    """Resample an int8 grid by `scale` (output pixels per input cell), keeping thin walls when shrinking."""
+    if abs(scale - 1.0) < 1e-9:
+        return data
+    h, w = data.shape
+    size = (max(int(round(w * scale)), 1), max(int(round(h * scale)), 1))
+    if scale > 1.0:
+        return cv2.resize(data.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).view(np.int8)
+    occ = cv2.resize((data == 100).astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.0
+    free = cv2.resize((data == 0).astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5
+    out = np.full(occ.shape, -1, np.int8)
+    out[free] = 0
+    out[occ] = 100
+    return out
+
+
+def feature_image(work: np.ndarray) -> np.ndarray:
+    """8-bit image for the detector: free white, unknown grey, occupied black (probabilities shaded)."""
+    img = np.full(work.shape, 128, np.uint8)
+    known = work >= 0
+    img[known] = (255 - work[known].astype(np.int32) * 255 // 100).astype(np.uint8)
+    return img
+
+
+def make_detector(kind: str):
+    if kind == 'akaze':
+        # a lower threshold than OpenCV's default: map corners are few and weak
+        return cv2.AKAZE_create(threshold=0.0005)
+    if kind == 'orb':
+        return cv2.ORB_create(nfeatures=4000, scaleFactor=1.2, nlevels=4, edgeThreshold=15, patchSize=15,
+                              fastThreshold=10)
+    if kind == 'sift':
+        return cv2.SIFT_create()
+    raise ValueError(f"unknown feature type '{kind}' (choose from {', '.join(FEATURE_TYPES)})")
+
+
+def prepare(grid: Grid, work_resolution: float, feature: str) -> Optional[PreparedGrid]:
+    """Crop, resample and describe one grid; None if the grid has no known cell."""
+    box = crop_to_known(grid.data)
+    if box is None:
+        return None
+    r0, r1, c0, c1 = box
+    scale = grid.resolution / work_resolution
+    work = resample(grid.data[r0:r1, c0:c1], scale)
+    # working pixel u covers cells [u/scale, (u+1)/scale) of the crop: its centre is cell c0 + (u + 0.5)/scale
+    px_to_cell = np.array([[1.0 / scale, 0.0, c0 + 0.5 / scale], [0.0, 1.0 / scale, r0 + 0.5 / scale], [0, 0, 1.0]])
+    px_to_map = grid.cell_to_map() @ px_to_cell
+
+    keypoints, descriptors = make_detector(feature).detectAndCompute(feature_image(work), None)
+    pts = np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2)
+
+    occupied = work >= 50
+    wall_rows, wall_cols = np.nonzero(occupied)
+    walls = np.column_stack([wall_cols, wall_rows]).astype(np.float64)
+    if len(walls):
+        dist, labels = cv2.distanceTransformWithLabels(np.where(occupied, 0, 255).astype(np.uint8), cv2.DIST_L2,
+                                                       cv2.DIST_MASK_PRECISE, labelType=cv2.DIST_LABEL_PIXEL)
+        # labels number the zero pixels in row-major scan order, the order of np.nonzero
+        nearest = labels.astype(np.int64) - 1
+    else:
+        dist = np.full(work.shape, np.inf, np.float32)
+        nearest = np.full(work.shape, -1, np.int64)
+    return PreparedGrid(work, px_to_map, pts, descriptors, walls, dist, nearest, work_resolution)
+
+
+def content_key(grid: Grid) -> str:
+    h = hashlib.blake2b(grid.data.tobytes(), digest_size=16)
+    h.update(repr((grid.data.shape, grid.resolution, grid.origin)).encode())
+    return h.hexdigest()
+
+
+class FeatureCache:
+    """Prepared grids by content; bounded, thread safe. Unchanged grids are not recomputed."""
+
+    def __init__(self, capacity: int = 256):
+        self._items: "OrderedDict[tuple, Optional[PreparedGrid]]" = OrderedDict()
+        self._capacity = capacity
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, grid: Grid, work_resolution: float, feature: str) -> Optional[PreparedGrid]:
+        key = (content_key(grid), round(work_resolution, 9), feature)
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                self.hits += 1
+                return self._items[key]
+        prepared = prepare(grid, work_resolution, feature)
+        with self._lock:
+            self.misses += 1
+            self._items[key] = prepared
+            while len(self._items) > self._capacity:
+                self._items.popitem(last=False)
+        return prepared

@@ -1,0 +1,246 @@
+"""Stage 2 of estimation: match one pair of prepared grids and decide whether the match can be trusted.
+
+For a pair (i, j): putative descriptor matches (ratio test, both directions, union as the original), several rigid
+RANSAC hypotheses (the metadata fixes the scale, so the model is rigid), each refined by ICP on wall pixels and
+checked against the maps themselves: walls of one map must lie on walls of the other wherever both are known.
+A pair is accepted only when its best placement agrees well, overlaps enough, and no clearly different placement
+agrees almost as well (symmetric buildings make such aliases; a guess there would be a wrong merge).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
+
+import cv2
+import numpy as np
+
+from . import transforms as tf
+from .features import PreparedGrid
+from .search import correlate_candidates
+from .settings import EstimationSettings
+
+log = logging.getLogger('rosout.multirobot_map_merge.matching')
+
+
+@dataclass
+class Placement:
+    """A candidate rigid transform from pixels of grid i to pixels of grid j, with its verification figures."""
+    transform: np.ndarray
+    support: int = 0            # wall pixels (of both maps) that lie on a wall of the other map
+    agreement: float = 0.0      # support / wall pixels of both maps inside the common known area
+    overlap_m2: float = 0.0     # common known area
+
+
+@dataclass
+class PairMatch:
+    i: int
+    j: int
+    matches: int = 0
+    inliers: int = 0
+    confidence: float = 0.0
+    accepted: bool = False
+    reason: str = ''
+    best: Optional[Placement] = None
+    transform_m: Optional[np.ndarray] = None   # metric: map frame of i -> map frame of j
+    alternatives: List[Placement] = field(default_factory=list, repr=False)
+
+    @property
+    def weight(self) -> float:
+        return float(self.best.support) if self.best is not None else 0.0
+
+
+def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float) -> np.ndarray:
+    """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction."""
+    if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
+        return np.zeros((0, 2), np.int64)
+    norm = cv2.NORM_HAMMING if pi.descriptors.dtype == np.uint8 else cv2.NORM_L2
+    matcher = cv2.BFMatcher(norm)
+    found = set()
+    for query, train, swapped in ((pi.descriptors, pj.descriptors, False), (pj.descriptors, pi.descriptors, True)):
+        for pair in matcher.knnMatch(query, train, k=2):
+            if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance:
+                a, b = pair[0].queryIdx, pair[0].trainIdx
+                found.add((b, a) if swapped else (a, b))
+    return np.array(sorted(found), np.int64).reshape(-1, 2)
+
+
+def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int,
+                 rng: np.random.Generator) -> Tuple[Optional[np.ndarray], np.ndarray]:
+    """Best rigid transform p -> q by 2-point RANSAC (vectorised over all hypotheses), refit on its inliers."""
+    n = len(p)
+    if n < 3:
+        return None, np.zeros(n, bool)
+    idx = rng.integers(0, n, (iterations, 2))
+    idx = idx[idx[:, 0] != idx[:, 1]]
+    dp = p[idx[:, 1]] - p[idx[:, 0]]
+    dq = q[idx[:, 1]] - q[idx[:, 0]]
+    lp, lq = np.hypot(*dp.T), np.hypot(*dq.T)
+    # a rigid motion keeps distances: drop samples that cannot be one (and too short ones: bad angle)
+    keep = (lp > 5.0) & (np.abs(lp - lq) < 1.5 * threshold)
+    idx, dp, dq = idx[keep], dp[keep], dq[keep]
+    if len(idx) == 0:
+        return None, np.zeros(n, bool)
+    ang = np.arctan2(dq[:, 1], dq[:, 0]) - np.arctan2(dp[:, 1], dp[:, 0])
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    p0, q0 = p[idx[:, 0]], q[idx[:, 0]]
+    tx = (q0[:, 0] - (c[:, 0] * p0[:, 0] - s[:, 0] * p0[:, 1]))[:, None]
+    ty = (q0[:, 1] - (s[:, 0] * p0[:, 0] + c[:, 0] * p0[:, 1]))[:, None]
+    ex = c * p[:, 0] - s * p[:, 1] + tx - q[:, 0]
+    ey = s * p[:, 0] + c * p[:, 1] + ty - q[:, 1]
+    inliers = ex * ex + ey * ey < threshold * threshold
+    mask = inliers[np.argmax(inliers.sum(axis=1))]
+    model = None
+    for _ in range(3):
+        if mask.sum() < 3:
+            break
+        model = tf.kabsch(p[mask], q[mask])
+        mask = np.hypot(*(tf.apply(model, p) - q).T) < threshold
+    return model, mask
+
+
+def hypotheses(p: np.ndarray, q: np.ndarray, s: EstimationSettings, rng: np.random.Generator) -> List[np.ndarray]:
+    """Up to s.max_hypotheses rigid models, each found after removing the inliers of the previous ones."""
+    found = []
+    remaining = np.arange(len(p))
+    while len(found) < s.max_hypotheses and len(remaining) >= s.min_inliers:
+        model, mask = ransac_rigid(p[remaining], q[remaining], s.ransac_threshold, s.ransac_iterations, rng)
+        if model is None or mask.sum() < s.min_inliers:
+            break
+        found.append(model)
+        remaining = remaining[~mask]
+    return found
+
+
+def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSettings,
+        rng: np.random.Generator) -> np.ndarray:
+    """Refine a pixel transform i -> j by point-to-point ICP of i's walls onto j's nearest walls."""
+    src = pi.walls
+    if len(src) > s.icp_max_points:
+        src = src[rng.choice(len(src), s.icp_max_points, replace=False)]
+    model = start.copy()
+    if len(src) < 10 or len(pj.walls) < 10:
+        return model
+    # shrinking correspondence radius: coarse capture first, then precise
+    radii = np.linspace(s.icp_start_radius, s.icp_end_radius, s.icp_iterations)
+    for radius in radii:
+        moved = tf.apply(model, src)
+        nn, dist = pj.nearest(moved)
+        close = dist < radius
+        if close.sum() < 10:
+            break
+        step = tf.kabsch(moved[close], nn[close])
+        model = step @ model
+        if abs(step[1, 0]) < 1e-5 and np.abs(step[:2, 2]).max() < 1e-3:
+            if radius <= s.icp_end_radius + 1e-9:
+                break
+    return model
+
+
+def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
+    """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j."""
+    h, w = pj.work.shape
+    warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
+    both = (warped >= 0) & (pj.work >= 0)
+    walls_i = both & (warped >= 50)
+    walls_j = both & (pj.work >= 50)
+    n_i, n_j = int(walls_i.sum()), int(walls_j.sum())
+    result = Placement(model, overlap_m2=float(both.sum()) * pi.resolution ** 2)
+    if n_i + n_j == 0:
+        return result
+    dist_i = cv2.distanceTransform(np.where(warped >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    tol = s.verify_tolerance
+    support = int((walls_i & (pj.wall_distance <= tol)).sum()) + int((walls_j & (dist_i <= tol)).sum())
+    result.support = support
+    result.agreement = support / float(n_i + n_j)
+    return result
+
+
+def plausible(c: Placement, s: EstimationSettings) -> bool:
+    """Agrees well over a common area large enough to mean something."""
+    return c.agreement >= s.min_agreement and c.overlap_m2 >= s.min_overlap_m2 and c.support >= s.min_support
+
+
+def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) -> List[np.ndarray]:
+    """The best placement turned by 90, 180 and 270 degrees about the middle of the common area.
+
+    Buildings repeat themselves; a placement that is as good after such a turn means the match is ambiguous.
+    """
+    h, w = pj.work.shape
+    warped = cv2.warpAffine(pi.work.view(np.uint8), best.transform[:2], (w, h), flags=cv2.INTER_NEAREST,
+                            borderValue=255).view(np.int8)
+    rows, cols = np.nonzero((warped >= 0) & (pj.work >= 0))
+    if rows.size == 0:
+        return []
+    cx, cy = cols.mean(), rows.mean()
+    out = []
+    for quarter in (1, 2, 3):
+        turn = tf.translation(cx, cy) @ tf.rigid(0.0, 0.0, quarter * math.pi / 2) @ tf.translation(-cx, -cy)
+        out.append(turn @ best.transform)
+    return out
+
+
+def distinct(a: Placement, b: Placement, pi: PreparedGrid, s: EstimationSettings) -> bool:
+    h, w = pi.work.shape
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+    rot, disp = tf.difference(a.transform, b.transform, corners)
+    return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
+
+
+def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings) -> PairMatch:
+    """Match grids i and j; the result's transform_m maps metric points of map i into map j."""
+    result = PairMatch(i, j)
+    rng = np.random.default_rng(s.seed + 7919 * i + j)
+
+    def refine(model: np.ndarray) -> Placement:
+        return verify(pi, pj, icp(pi, pj, model, s, rng), s)
+
+    pairs = putative_matches(pi, pj, s.ratio)
+    result.matches = len(pairs)
+    p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
+    def rank(c: Placement):
+        # a placement that agrees beats any that does not, however large
+        return plausible(c, s), c.support
+
+    candidates = [refine(h) for h in hypotheses(p, q, s, rng)]
+    best = max(candidates, key=rank, default=None)
+    if best is None or not plausible(best, s):
+        # too few good descriptor matches (small overlaps): search placements by correlation instead
+        candidates += [refine(m) for m in correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees)]
+        best = max(candidates, key=rank, default=None)
+    if best is None:
+        result.reason = 'no rigid model'
+        return result
+    if plausible(best, s):
+        # only worth the extra work for a placement that could be accepted
+        candidates += [refine(m) for m in symmetric_alternatives(pi, pj, best)]
+    candidates.sort(key=rank, reverse=True)
+    best = candidates[0]
+    result.best = best
+    result.alternatives = candidates[1:]
+    if len(pairs):
+        result.inliers = int((np.hypot(*(tf.apply(best.transform, p) - q).T) < s.ransac_threshold).sum())
+    result.confidence = result.inliers / (8.0 + 0.3 * result.matches)
+    result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
+
+    rival = next((c for c in candidates[1:] if distinct(c, best, pi, s) and plausible(c, s)
+                  and c.support >= s.ambiguity_ratio * best.support), None)
+    if best.agreement < s.min_agreement:
+        result.reason = f'agreement {best.agreement:.2f} < {s.min_agreement:.2f}'
+    elif best.overlap_m2 < s.min_overlap_m2:
+        result.reason = f'overlap {best.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
+    elif best.support < s.min_support:
+        result.reason = f'support {best.support} < {s.min_support}'
+    elif rival is not None:
+        result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
+                         f'{rival.support} vs {best.support}')
+    elif result.confidence < s.confidence:
+        result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
+    else:
+        result.accepted = True
+    log.debug('pair %d-%d: %d matches, %d inliers, confidence %.3f, agreement %.3f, overlap %.1f m2, %s',
+              i, j, result.matches, result.inliers, result.confidence, best.agreement, best.overlap_m2,
+              'accepted' if result.accepted else result.reason)
+    return result

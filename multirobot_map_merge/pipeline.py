@@ -1,0 +1,86 @@
+"""The merging pipeline: feed grids, estimate or set transforms, compose (the original's combine_grids API).
+
+    pipeline = MergingPipeline(EstimationSettings())
+    pipeline.feed([grid_a, grid_b, None])
+    pipeline.estimate()                 # or pipeline.set_known_poses([...])
+    merged = pipeline.compose('world')  # a Grid in the merged frame, or None
+
+Transforms are metric, from each grid's own map frame (the frame its origin is given in) into the merged frame;
+`cell_transform(k)` gives the same placement in cells of the reference grid. Not thread safe: one owner.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from . import transforms as tf
+from .compose import compose
+from .estimation import Estimate, estimate
+from .features import FeatureCache
+from .grid import Grid
+from .known_poses import InitPose, transforms_from_poses
+from .settings import EstimationSettings
+
+log = logging.getLogger('rosout.multirobot_map_merge.pipeline')
+
+
+class MergingPipeline:
+    def __init__(self, settings: Optional[EstimationSettings] = None):
+        self.settings = settings or EstimationSettings()
+        self.settings.validate()
+        self.cache = FeatureCache()
+        self.grids: List[Optional[Grid]] = []
+        self.transforms: List[Optional[np.ndarray]] = []
+        self.reference: Optional[int] = None
+        self.last_estimate: Optional[Estimate] = None
+        self.compose_seconds = 0.0
+
+    def feed(self, grids: Sequence[Optional[Grid]]) -> None:
+        """Replace the grids. Transforms are kept only if the number of grids is unchanged."""
+        grids = [g if g is not None and not g.is_empty() else None for g in grids]
+        if len(grids) != len(self.grids):
+            self.transforms = [None] * len(grids)
+            self.reference = None
+        self.grids = grids
+
+    def estimate(self, preferred_reference: Optional[int] = None) -> Estimate:
+        """Estimate transforms from the grids' content (unknown initial poses)."""
+        if preferred_reference is None:
+            preferred_reference = self.reference
+        result = estimate(self.grids, self.settings, self.cache, preferred_reference)
+        self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
+        return result
+
+    def set_known_poses(self, poses: Sequence[Optional[InitPose]], legacy: bool = False) -> None:
+        if len(poses) != len(self.grids):
+            raise ValueError(f'{len(poses)} poses for {len(self.grids)} grids')
+        self.transforms = transforms_from_poses(self.grids, poses, legacy)
+        self.reference = None
+
+    def set_transforms(self, transforms: Sequence[Optional[np.ndarray]]) -> None:
+        if len(transforms) != len(self.grids):
+            raise ValueError(f'{len(transforms)} transforms for {len(self.grids)} grids')
+        self.transforms = [None if t is None else np.asarray(t, float) for t in transforms]
+
+    def compose(self, frame_id: str = '') -> Optional[Grid]:
+        t0 = time.perf_counter()
+        resolution = None
+        if self.reference is not None and self.grids[self.reference] is not None:
+            resolution = self.grids[self.reference].resolution
+        merged = compose(self.grids, self.transforms, resolution, frame_id)
+        self.compose_seconds = time.perf_counter() - t0
+        return merged
+
+    def cell_transform(self, k: int) -> Optional[np.ndarray]:
+        """Grid k's cells (corner coordinates) -> cells of the reference grid (or of the first placed grid)."""
+        ref = self.reference
+        if ref is None:
+            ref = next((i for i, t in enumerate(self.transforms) if t is not None and self.grids[i] is not None), None)
+        if ref is None or self.transforms[k] is None or self.grids[k] is None:
+            return None
+        g_ref = self.grids[ref]
+        return (tf.inverse(g_ref.cell_to_map()) @ tf.inverse(self.transforms[ref]) @ self.transforms[k]
+                @ self.grids[k].cell_to_map())

@@ -1,0 +1,114 @@
+"""Candidate placements without descriptors: rotation by wall directions, translation by cross-correlation.
+
+Small overlaps give too few descriptor matches for RANSAC. Here, at a coarse resolution, grid i is turned by
+candidate angles (the differences of the grids' dominant wall directions modulo 90 degrees, plus a sweep for
+maps without straight walls) and slid over grid j by FFT cross-correlation of
+    walls_i * walls_j  -  penalty * (walls_i * open_j + open_i * walls_j)
+(open = free and away from walls). The best peaks are returned as pixel transforms i -> j for refinement and
+verification by the matcher; nothing here decides whether a pair is accepted.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import List, Tuple
+
+import cv2
+import numpy as np
+
+from .features import PreparedGrid
+
+PENALTY = 1.0
+
+
+@dataclass
+class CoarseGrid:
+    walls: np.ndarray        # float32 0/1, coarse pixels
+    open: np.ndarray         # float32 0/1
+    factor: int              # working pixels per coarse pixel
+    direction: float         # dominant wall direction modulo 90 degrees (radians), NaN if none
+    strength: float          # share of wall gradient energy near that direction
+
+
+def coarse(p: PreparedGrid, factor: int) -> CoarseGrid:
+    work = p.work
+    h, w = work.shape
+    size = (max(w // factor, 1), max(h // factor, 1))
+    walls = cv2.resize((work >= 50).astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0
+    walls = cv2.dilate(walls.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    far = (work == 0) & (p.wall_distance > 2 * factor)
+    open_ = (cv2.resize(far.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5).astype(np.float32)
+    direction, strength = wall_direction(work)
+    return CoarseGrid(walls, open_ * (1 - walls), factor, direction, strength)
+
+
+def wall_direction(work: np.ndarray) -> Tuple[float, float]:
+    """Dominant wall direction modulo 90 degrees from the gradient of the wall image."""
+    img = cv2.GaussianBlur((work >= 50).astype(np.float32), (5, 5), 1.0)
+    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.hypot(gx, gy)
+    sel = mag > 0.05
+    if sel.sum() < 50:
+        return float('nan'), 0.0
+    ang = np.mod(np.arctan2(gy[sel], gx[sel]), math.pi / 2)
+    hist, edges = np.histogram(ang, bins=180, range=(0, math.pi / 2), weights=mag[sel])
+    hist = np.convolve(np.r_[hist[-2:], hist, hist[:2]], np.ones(5) / 5, mode='valid')
+    k = int(np.argmax(hist))
+    strength = float(hist[k] * 5 / max(hist.sum(), 1e-9))
+    return float((edges[k] + edges[k + 1]) / 2), strength
+
+
+def rotation_candidates(ci: CoarseGrid, cj: CoarseGrid, sweep_degrees: float) -> List[float]:
+    """Angles (radians) to try for turning grid i onto grid j."""
+    if ci.strength > 0.08 and cj.strength > 0.08:
+        base = cj.direction - ci.direction
+        return [base + k * math.pi / 2 + d for k in range(4) for d in (-0.02, 0.0, 0.02)]
+    return list(np.radians(np.arange(0.0, 360.0, sweep_degrees)))
+
+
+def _fft_shape(h: int, w: int) -> Tuple[int, int]:
+    return cv2.getOptimalDFTSize(h), cv2.getOptimalDFTSize(w)
+
+
+def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sweep_degrees: float = 3.0,
+                         peaks_per_angle: int = 2, keep: int = 8) -> List[np.ndarray]:
+    """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels."""
+    ci, cj = coarse(pi, factor), coarse(pj, factor)
+    hi, wi = ci.walls.shape
+    hj, wj = cj.walls.shape
+    diag = int(math.ceil(math.hypot(hi, wi)))
+    shape = _fft_shape(diag + hj, diag + wj)
+    fwj = np.fft.rfft2(cj.walls, shape)
+    foj = np.fft.rfft2(cj.open, shape)
+    centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
+    found = []
+    for angle in rotation_candidates(ci, cj, sweep_degrees):
+        c, s = math.cos(angle), math.sin(angle)
+        # turn about the centre and put the result in a diag x diag canvas
+        m = np.array([[c, -s, 0.0], [s, c, 0.0]])
+        m[:, 2] = diag / 2.0 - m[:, :2] @ centre
+        wr = cv2.warpAffine(ci.walls, m, (diag, diag), flags=cv2.INTER_NEAREST)
+        orr = cv2.warpAffine(ci.open, m, (diag, diag), flags=cv2.INTER_NEAREST)
+        if wr.sum() < 5:
+            continue
+        fw, fo = np.fft.rfft2(wr, shape), np.fft.rfft2(orr, shape)
+        score = np.fft.irfft2(np.conj(fw) * (fwj - PENALTY * foj) - PENALTY * np.conj(fo) * fwj, shape)
+        # local maxima, best first
+        peaks = (score == cv2.dilate(score.astype(np.float32), np.ones((5, 5), np.uint8))) & (score > 0)
+        ys, xs = np.nonzero(peaks)
+        if ys.size == 0:
+            continue
+        order = np.argsort(score[ys, xs])[::-1][:peaks_per_angle]
+        for y, x in zip(ys[order], xs[order]):
+            # circular correlation: shifts past half the size are negative
+            dy = y - shape[0] if y > shape[0] - diag else y
+            dx = x - shape[1] if x > shape[1] - diag else x
+            t = np.eye(3)
+            t[:2] = m
+            t[:2, 2] += (dx, dy)
+            found.append((float(score[y, x]), t))
+    found.sort(key=lambda st: st[0], reverse=True)
+    k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
+    k_inv = np.linalg.inv(k)
+    return [k @ t @ k_inv for _, t in found[:keep]]

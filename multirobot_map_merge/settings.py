@@ -1,0 +1,51 @@
+"""Settings of the estimation pipeline: one object feeding validation, the offline tool and the node."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from .features import FEATURE_TYPES
+
+
+@dataclass
+class EstimationSettings:
+    feature: str = 'akaze'            # keypoint detector: akaze (as the C++ node), orb (as the thesis) or sift
+    confidence: float = 0.0           # Brown-Lowe confidence inliers / (8 + 0.3 matches) a pair needs (§9.5)
+    min_work_resolution: float = 0.05  # m/pixel: finer maps are matched at this resolution
+    ratio: float = 0.8                # descriptor ratio test
+    ransac_threshold: float = 3.0     # pixels
+    ransac_iterations: int = 2000
+    max_hypotheses: int = 5           # rigid models tried per pair
+    min_inliers: int = 4              # RANSAC inliers a model needs
+    icp_iterations: int = 30
+    icp_start_radius: float = 6.0     # pixels
+    icp_end_radius: float = 2.0
+    icp_max_points: int = 4000
+    verify_tolerance: float = 2.0     # pixels: a wall "agrees" when the other map has a wall this close
+    min_agreement: float = 0.85       # share of walls in the common area that agree
+    min_overlap_m2: float = 4.0       # common known area a pair needs
+    min_support: int = 100            # agreeing wall pixels a pair needs
+    ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best support -> ambiguous
+    distinct_degrees: float = 5.0     # placements further apart than this are distinct
+    distinct_metres: float = 1.0
+    search_factor: int = 4            # working pixels per pixel of the correlation search
+    search_sweep_degrees: float = 3.0  # rotation step of the search for maps without straight walls
+    threads: int = 2                  # pairs matched in parallel
+    seed: int = 0
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad setting."""
+        if self.feature not in FEATURE_TYPES:
+            raise ValueError(f"feature must be one of {', '.join(FEATURE_TYPES)}, not '{self.feature}'")
+        positive = ('min_work_resolution', 'ratio', 'ransac_threshold', 'ransac_iterations', 'max_hypotheses',
+                    'icp_start_radius', 'icp_end_radius', 'icp_max_points', 'verify_tolerance', 'threads')
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f'{name} must be positive, not {getattr(self, name)}')
+        if not 0.0 <= self.min_agreement <= 1.0:
+            raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
+        if self.confidence != self.confidence:
+            raise ValueError('confidence must be a number, not NaN')
+
+    def replace(self, **changes) -> 'EstimationSettings':
+        return dataclasses.replace(self, **changes)

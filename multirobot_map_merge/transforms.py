@@ -1,0 +1,63 @@
+"""2-D homogeneous transforms (3x3 numpy matrices) used across the merging core.
+
+A transform maps column vectors: p_out = M @ [x, y, 1]. ``rigid(x, y, yaw)`` is p -> R(yaw) p + (x, y).
+"""
+from __future__ import annotations
+
+import math
+from typing import Tuple
+
+import numpy as np
+
+
+def rigid(x: float, y: float, yaw: float, scale: float = 1.0) -> np.ndarray:
+    c, s = math.cos(yaw) * scale, math.sin(yaw) * scale
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def params(m: np.ndarray) -> Tuple[float, float, float, float]:
+    """(x, y, yaw, scale) of a similarity matrix."""
+    return float(m[0, 2]), float(m[1, 2]), math.atan2(m[1, 0], m[0, 0]), math.hypot(m[0, 0], m[1, 0])
+
+
+def scaling(s: float) -> np.ndarray:
+    return np.diag([s, s, 1.0])
+
+
+def translation(x: float, y: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, x], [0.0, 1.0, y], [0.0, 0.0, 1.0]])
+
+
+def inverse(m: np.ndarray) -> np.ndarray:
+    return np.linalg.inv(m)
+
+
+def apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply a 3x3 transform to an (N, 2) array of points."""
+    pts = np.asarray(pts, dtype=float).reshape(-1, 2)
+    return pts @ m[:2, :2].T + m[:2, 2]
+
+
+def wrap_angle(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rigid transform (3x3) taking src points onto dst points (no reflection, no scale)."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    cov = (src - ms).T @ (dst - md)
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, d]) @ u.T
+    m = np.eye(3)
+    m[:2, :2] = r
+    m[:2, 2] = md - r @ ms
+    return m
+
+
+def difference(a: np.ndarray, b: np.ndarray, at: np.ndarray) -> Tuple[float, float]:
+    """How far apart two transforms are: (|rotation difference| in radians, largest displacement of points `at`)."""
+    d = inverse(b) @ a
+    rot = abs(math.atan2(d[1, 0], d[0, 0]))
+    disp = np.hypot(*(apply(a, at) - apply(b, at)).T).max() if len(at) else 0.0
+    return rot, float(disp)
