@@ -1,0 +1,186 @@
+"""explore_lite's goal selection (explore.md §6–§8), without ROS and without clocks (time is passed in).
+
+The node calls ``GoalLogic.plan(frontiers, resolution, now)`` on every planning tick and acts on the result
+(send a goal, keep the current one, or stop), and ``on_goal_done(status, target)`` from the action's done callback.
+"""
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import threading
+from dataclasses import dataclass, field, replace
+from typing import Any, List, Optional, Sequence, Tuple
+
+from .frontier_search import Frontier
+
+_log = logging.getLogger('rosout.' + __name__)
+
+Point2 = Tuple[float, float]
+
+# actionlib_msgs/GoalStatus values (no ROS import in the core).
+PREEMPTED = 2
+SUCCEEDED = 3
+ABORTED = 4
+
+# The original's blacklist radius: a square of ±5 cells (strict) around each blacklisted point.
+BLACKLIST_TOLERANCE_CELLS = 5
+# The original's "same goal" test: xy distance below 1 cm.
+SAME_GOAL_DISTANCE = 0.01
+
+
+def same_point(a: Sequence[float], b: Sequence[float]) -> bool:
+    """The original's ``operator==`` on points: distance in the xy plane < 0.01 m (z ignored)."""
+    dx, dy = a[0] - b[0], a[1] - b[1]
+    return math.sqrt(dx * dx + dy * dy) < SAME_GOAL_DISTANCE
+
+
+def on_blacklist(point: Sequence[float], blacklist: Sequence[Sequence[float]], resolution: float) -> bool:
+    """True if ``point`` is strictly within ±5 cells in both x and y of a blacklisted point."""
+    tol = BLACKLIST_TOLERANCE_CELLS * resolution
+    return any(abs(point[0] - b[0]) < tol and abs(point[1] - b[1]) < tol for b in blacklist)
+
+
+class PlanAction(enum.Enum):
+    SEND_GOAL = 'send_goal'  # send ``target`` to the navigation action (it replaces the previous goal)
+    KEEP_GOAL = 'keep_goal'  # same goal as last time: send nothing
+    STOP = 'stop'            # exploration ended: cancel goals and stop the timer (then ``return_target`` if set)
+
+
+@dataclass
+class PlanResult:
+    action: PlanAction
+    target: Optional[Point2] = None          # goal position (orientation is always identity, as the original)
+    frontier: Optional[Frontier] = None      # the chosen frontier
+    reason: str = ''                         # STOP: 'no_frontiers' or 'all_blacklisted'
+    blacklisted: List[Point2] = field(default_factory=list)  # goals blacklisted by the progress timeout here
+    return_target: Any = None                # STOP with return_to_init: the initial pose to drive back to
+
+
+class GoalLogic:
+    """Goal selection state: blacklist, previous goal, progress tracking. Thread-safe (the done callback of the
+    action runs in another thread than planning; the original races here, this port locks)."""
+
+    def __init__(self, progress_timeout: float, return_to_init: bool = False) -> None:
+        self.progress_timeout = progress_timeout
+        self.return_to_init = return_to_init
+        self._lock = threading.RLock()
+        self._blacklist: List[Point2] = []
+        # None instead of the original's (0,0,0): a first target within 1 cm of the origin is not "the same goal"
+        # (the original would blacklist it at once).
+        self._prev_goal: Optional[Point2] = None
+        self._prev_distance = 0.0
+        self._last_progress = 0.0
+        self._resuming = False
+        self._initial_pose: Any = None
+        self._returned = False
+
+    @property
+    def blacklist(self) -> List[Point2]:
+        with self._lock:
+            return list(self._blacklist)
+
+    def add_to_blacklist(self, point: Sequence[float]) -> None:
+        with self._lock:
+            self._blacklist.append((float(point[0]), float(point[1])))
+        _log.debug("Adding current goal to black list")
+
+    def is_blacklisted(self, point: Sequence[float], resolution: float) -> bool:
+        with self._lock:
+            return on_blacklist(point, self._blacklist, resolution)
+
+    def set_initial_pose(self, pose: Any) -> None:
+        """Remember the start pose (opaque; handed back in ``PlanResult.return_target``) for return_to_init."""
+        with self._lock:
+            self._initial_pose = pose
+
+    def resume(self) -> None:
+        """As the ROS 2 port's resume: the next plan skips the progress-timeout check once."""
+        with self._lock:
+            self._resuming = True
+
+    @property
+    def returning_home(self) -> bool:
+        """True after a STOP carried ``return_target``, until a new exploration goal is sent."""
+        with self._lock:
+            return self._returned
+
+    def select(self, frontiers: Sequence[Frontier], resolution: float) -> Optional[Frontier]:
+        """First frontier (cost order) whose centroid is not blacklisted, or None."""
+        with self._lock:
+            for f in frontiers:
+                if not on_blacklist(f.centroid, self._blacklist, resolution):
+                    return f
+        return None
+
+    def plan(self, frontiers: Sequence[Frontier], resolution: float, now: float) -> PlanResult:
+        """One planning cycle (makePlan) over frontiers sorted by cost; ``now`` in seconds."""
+        with self._lock:
+            _log.debug("found %d frontiers", len(frontiers))
+            for i, f in enumerate(frontiers):
+                _log.debug("frontier %d cost: %f", i, f.cost)
+            blacklisted: List[Point2] = []
+            # The original recurses (re-plans) after blacklisting a timed-out goal; the next round picks another
+            # frontier, which normally is a new goal. Each round blacklists one more goal, so the loop ends.
+            while True:
+                if not frontiers:
+                    return self._stop('no_frontiers', blacklisted)
+                frontier = self.select(frontiers, resolution)
+                if frontier is None:
+                    return self._stop('all_blacklisted', blacklisted)
+                target = frontier.centroid
+                same_goal = self._prev_goal is not None and same_point(self._prev_goal, target)
+                self._prev_goal = target
+                if not same_goal or self._prev_distance > frontier.min_distance:
+                    # a different goal, or we got closer to this one
+                    self._last_progress = now
+                    self._prev_distance = frontier.min_distance
+                if now - self._last_progress > self.progress_timeout and not self._resuming:
+                    self.add_to_blacklist(target)
+                    blacklisted.append(target)
+                    continue
+                self._resuming = False
+                if same_goal:
+                    return PlanResult(PlanAction.KEEP_GOAL, target, frontier, blacklisted=blacklisted)
+                self._returned = False
+                return PlanResult(PlanAction.SEND_GOAL, target, frontier, blacklisted=blacklisted)
+
+    def _stop(self, reason: str, blacklisted: List[Point2]) -> PlanResult:
+        self._resuming = False
+        ret = None
+        # Drive home once per end of exploration; a later STOP (e.g. after the return goal completes) does not.
+        if self.return_to_init and self._initial_pose is not None and not self._returned:
+            ret = self._initial_pose
+            self._returned = True
+        return PlanResult(PlanAction.STOP, reason=reason, blacklisted=blacklisted, return_target=ret)
+
+    def on_goal_done(self, status: int, target: Optional[Sequence[float]]) -> bool:
+        """Done callback of an exploration goal (``target`` captured when it was sent): ABORTED blacklists the
+        target. Returns True: the original replans at once after every terminal status."""
+        _log.debug("Reached goal with status: %s", status)
+        if status == ABORTED and target is not None:
+            self.add_to_blacklist(target)
+        return True
+
+
+def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Sequence[float]],
+                       team_radius: float) -> List[Frontier]:
+    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal.
+
+    Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
+    penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
+    frontiers after all unpenalised ones (also for inf/NaN costs). A robot therefore goes where a teammate is
+    heading only when every other frontier is gone or blacklisted. No team goals: the input order, unchanged.
+    ``team_goals`` must be in the frontiers' frame and exclude this robot's own goal.
+    """
+    if not team_goals or not frontiers:
+        return list(frontiers)
+    finite = [f.cost for f in frontiers if math.isfinite(f.cost)]
+    penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
+    keyed = []
+    for f in frontiers:
+        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < team_radius for g in team_goals)
+        g = replace(f, cost=f.cost + penalty) if near else f
+        keyed.append(((near, math.isnan(g.cost), g.cost), g))
+    keyed.sort(key=lambda kv: kv[0])
+    return [g for _, g in keyed]

@@ -1,0 +1,226 @@
+"""explore goal selection: same-goal predicate, blacklist, progress timeout, stop, return_to_init, team penalty,
+parameters."""
+import math
+import re
+
+import numpy as np
+import pytest
+
+from explore.frontier_search import Frontier
+from explore.goal_logic import (ABORTED, PREEMPTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty,
+                                on_blacklist, same_point)
+from explore.params import ExploreParams, ParamError, describe
+
+RES = 0.5  # binary-exact, so the ±5-cell blacklist edges can be tested exactly
+
+
+def frontier(x, y, cost=0.0, min_distance=1.0, size=10):
+    return Frontier(size=size, min_distance=min_distance, cost=cost, initial=(x, y), centroid=(x, y),
+                    middle=(x, y), points=np.zeros((size - 1, 2)))
+
+
+# ---- same goal (the ROS 2 port's testSameGoal) --------------------------------------------------------------------
+
+def test_same_point():
+    assert not same_point((1.0, 2.0, 3.0), (0.0, 0.0, 0.0))
+    assert same_point((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))
+    assert same_point((1.0, 2.0, 0.0), (1.0, 2.0, 5.0))        # z is ignored
+    assert same_point((0.0, 0.0), (0.006, 0.0079))              # 0.0099... m
+    assert not same_point((0.0, 0.0), (0.006, 0.0081))          # > 1 cm
+    assert not same_point((0.0, 0.0), (0.01, 0.0))              # strict
+
+
+# ---- blacklist ----------------------------------------------------------------------------------------------------
+
+def test_blacklist_square_is_five_cells_strict():
+    bl = [(10.0, 10.0)]
+    edge = 5 * RES
+    assert on_blacklist((10.0 + edge - 0.01, 10.0 - edge + 0.01), bl, RES)
+    assert not on_blacklist((10.0 + edge, 10.0), bl, RES)
+    assert not on_blacklist((10.0, 10.0 - edge), bl, RES)
+    assert not on_blacklist((10.0, 10.0), [], RES)
+
+
+def test_aborted_goal_is_blacklisted_and_nearby_frontier_skipped():
+    logic = GoalLogic(progress_timeout=30.0)
+    fa, near, far = frontier(1.0, 1.0, -3.0), frontier(1.0 + 4 * RES, 1.0, -2.0), frontier(1.0 + 5 * RES, 1.0, -1.0)
+    first = logic.plan([fa, near, far], RES, now=100.0)
+    assert first.action is PlanAction.SEND_GOAL and first.target == fa.centroid
+    assert logic.on_goal_done(ABORTED, first.target) is True
+    assert logic.is_blacklisted(fa.centroid, RES)
+    nxt = logic.plan([fa, near, far], RES, now=101.0)
+    # 'near' is within 5 cells of the aborted goal, 'far' exactly 5 cells away is not
+    assert nxt.action is PlanAction.SEND_GOAL and nxt.frontier is far
+
+
+@pytest.mark.parametrize('status', [SUCCEEDED, PREEMPTED, 5, 8])
+def test_other_results_replan_without_blacklisting(status):
+    logic = GoalLogic(progress_timeout=30.0)
+    assert logic.on_goal_done(status, (1.0, 1.0)) is True
+    assert logic.blacklist == []
+
+
+def test_all_blacklisted_stops():
+    logic = GoalLogic(progress_timeout=30.0)
+    for p in [(0.0, 0.0), (5.0, 5.0)]:
+        logic.on_goal_done(ABORTED, p)
+    res = logic.plan([frontier(0.1, 0.1), frontier(5.0, 5.2)], RES, now=10.0)
+    assert res.action is PlanAction.STOP and res.reason == 'all_blacklisted' and res.return_target is None
+
+
+def test_no_frontiers_stops():
+    res = GoalLogic(progress_timeout=30.0).plan([], RES, now=10.0)
+    assert res.action is PlanAction.STOP and res.reason == 'no_frontiers'
+
+
+# ---- same goal and progress timeout -------------------------------------------------------------------------------
+
+def test_same_goal_is_not_resent_until_timeout_then_blacklisted():
+    timeout = 30.0
+    logic = GoalLogic(progress_timeout=timeout)
+    stuck, other = frontier(2.0, 2.0, -5.0, min_distance=3.0), frontier(8.0, 8.0, -1.0)
+    t0 = 1000.0
+    assert logic.plan([stuck, other], RES, t0).action is PlanAction.SEND_GOAL
+    # the same frontier again, centroid moved by less than 1 cm, no progress: nothing is sent
+    jiggled = frontier(2.005, 2.0, -5.0, min_distance=3.0)
+    assert logic.plan([jiggled, other], RES, t0 + 10).action is PlanAction.KEEP_GOAL
+    assert logic.plan([jiggled, other], RES, t0 + timeout).action is PlanAction.KEEP_GOAL  # not yet (strict >)
+    res = logic.plan([jiggled, other], RES, t0 + timeout + 0.5)
+    assert res.action is PlanAction.SEND_GOAL and res.frontier is other
+    assert res.blacklisted == [jiggled.centroid] and logic.is_blacklisted(stuck.centroid, RES)
+
+
+def test_progress_towards_the_goal_resets_the_timeout():
+    logic = GoalLogic(progress_timeout=30.0)
+    t = 0.0
+    assert logic.plan([frontier(2.0, 2.0, min_distance=10.0)], RES, t).action is PlanAction.SEND_GOAL
+    for step in range(1, 10):  # getting closer every 20 s: never blacklisted
+        t += 20.0
+        res = logic.plan([frontier(2.0, 2.0, min_distance=10.0 - step)], RES, t)
+        assert res.action is PlanAction.KEEP_GOAL and res.blacklisted == []
+    # stuck at the same distance: blacklisted after the timeout, then nothing else is left
+    res = logic.plan([frontier(2.0, 2.0, min_distance=1.0)], RES, t + 31.0)
+    assert res.action is PlanAction.STOP and res.blacklisted == [(2.0, 2.0)]
+
+
+def test_a_different_goal_resets_the_timeout():
+    logic = GoalLogic(progress_timeout=30.0)
+    a, b = frontier(2.0, 2.0), frontier(9.0, 9.0)
+    logic.plan([a], RES, 0.0)
+    res = logic.plan([b], RES, 100.0)
+    assert res.action is PlanAction.SEND_GOAL and res.blacklisted == []
+
+
+def test_first_goal_near_origin_is_not_blacklisted_at_once():
+    # the original compares the first target with (0,0,0) and would blacklist it immediately
+    res = GoalLogic(progress_timeout=30.0).plan([frontier(0.001, 0.0)], RES, now=1e9)
+    assert res.action is PlanAction.SEND_GOAL
+
+
+def test_resume_skips_the_timeout_once():
+    logic = GoalLogic(progress_timeout=30.0)
+    f = frontier(2.0, 2.0)
+    logic.plan([f], RES, 0.0)
+    logic.resume()
+    assert logic.plan([f], RES, 100.0).action is PlanAction.KEEP_GOAL
+    assert logic.plan([f], RES, 101.0).action is PlanAction.STOP  # timed out, nothing else left
+
+
+# ---- return to init ----------------------------------------------------------------------------------------------
+
+def test_return_to_init_once_per_end_of_exploration():
+    logic = GoalLogic(progress_timeout=30.0, return_to_init=True)
+    home = ('pose', 1.0, 2.0)
+    logic.set_initial_pose(home)
+    logic.plan([frontier(3.0, 3.0)], RES, 0.0)
+    end = logic.plan([], RES, 5.0)
+    assert end.action is PlanAction.STOP and end.return_target is home and logic.returning_home
+    assert logic.plan([], RES, 6.0).return_target is None  # e.g. the replan after the return goal completes
+    assert logic.plan([frontier(7.0, 7.0)], RES, 7.0).action is PlanAction.SEND_GOAL  # new map: exploring again
+    assert not logic.returning_home
+    assert logic.plan([], RES, 8.0).return_target is home
+
+
+def test_return_to_init_off_or_without_pose():
+    off = GoalLogic(progress_timeout=30.0)
+    off.set_initial_pose('home')
+    assert off.plan([], RES, 0.0).return_target is None
+    assert GoalLogic(progress_timeout=30.0, return_to_init=True).plan([], RES, 0.0).return_target is None
+
+
+# ---- team coordination -------------------------------------------------------------------------------------------
+
+def test_team_penalty_demotes_frontiers_near_team_goals():
+    fs = [frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -5.0), frontier(0.5, 0.5, -4.0), frontier(20.0, 0.0, 2.0)]
+    out = apply_team_penalty(fs, [(0.0, 1.0)], team_radius=3.0)
+    near = {id(fs[0]), id(fs[2])}
+    # unpenalised frontiers keep their order and come first; penalised ones follow, in their own cost order
+    assert [f.centroid for f in out] == [(10.0, 0.0), (20.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
+    assert out[0] is fs[1] and out[1] is fs[3] and not near & {id(f) for f in out}
+    span = max(f.cost for f in fs) - min(f.cost for f in fs)
+    assert out[2].cost == pytest.approx(fs[0].cost + span + 1.0) and out[2].cost > max(f.cost for f in out[:2])
+    assert fs[0].cost == -10.0  # inputs are not modified
+
+
+def test_team_penalty_radius_is_strict_and_off_without_goals():
+    fs = [frontier(0.0, 0.0, -2.0), frontier(5.0, 0.0, -1.0)]
+    assert [f.centroid for f in apply_team_penalty(fs, [(-3.0, 0.0)], 3.0)] == [(0.0, 0.0), (5.0, 0.0)]
+    assert [f.centroid for f in apply_team_penalty(fs, [(-2.9, 0.0)], 3.0)] == [(5.0, 0.0), (0.0, 0.0)]
+    assert apply_team_penalty(fs, [], 3.0) == fs
+
+
+def test_team_penalty_keeps_tiers_with_infinite_costs():
+    fs = [frontier(0.0, 0.0, -math.inf), frontier(9.0, 0.0, math.inf)]
+    out = apply_team_penalty(fs, [(0.0, 0.0)], 1.0)
+    assert [f.centroid for f in out] == [(9.0, 0.0), (0.0, 0.0)]
+
+
+def test_penalised_frontier_chosen_when_others_blacklisted():
+    logic = GoalLogic(progress_timeout=30.0)
+    fs = apply_team_penalty([frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -1.0)], [(0.0, 0.5)], 3.0)
+    assert logic.plan(fs, RES, 0.0).target == (10.0, 0.0)
+    logic.on_goal_done(ABORTED, (10.0, 0.0))
+    assert logic.plan(fs, RES, 1.0).target == (0.0, 0.0)
+
+
+# ---- parameters --------------------------------------------------------------------------------------------------
+
+def test_params_match_the_specification_table(shared_dir):
+    text = (shared_dir / 'reference' / 'explore.md').read_text()
+    section = text[text.index('### 2.1 Parameters'):text.index('### 2.2')]
+    rows = re.findall(r'^\| `~(\w+)` \| (\w+)[^|]*\| `([^`]+)` \|', section, re.M)
+    assert len(rows) == 11
+    defaults = ExploreParams()
+    types = {'string': str, 'double': float, 'bool': bool}
+    for name, typ, default in rows:
+        value = getattr(defaults, name)
+        assert type(value) is types[typ], name
+        expect = {'true': True, 'false': False}.get(default, default)
+        assert value == (types[typ](expect) if typ == 'double' else expect), name
+
+
+def test_params_from_mapping_coerces_like_roscpp(caplog):
+    p = ExploreParams.from_mapping({'planner_frequency': 2, 'visualize': 1, 'potential_scale': 3.0,
+                                    'robot_base_frame': 5, 'unknown_param': 'x', 'return_to_init': True})
+    assert p.planner_frequency == 2.0 and isinstance(p.planner_frequency, float)
+    assert p.visualize is False and p.robot_base_frame == 'base_link'  # wrong types: defaults, with a warning
+    assert p.potential_scale == 3.0 and p.return_to_init is True
+    assert 'visualize' in caplog.text and 'robot_base_frame' in caplog.text
+
+
+@pytest.mark.parametrize('bad', [{'planner_frequency': 0.0}, {'planner_frequency': -1.0},
+                                 {'progress_timeout': float('nan')}, {'team_radius': -1.0},
+                                 {'probability_map': True, 'free_threshold': 70, 'occupied_threshold': 60},
+                                 {'occupied_threshold': 101}])
+def test_params_validation(bad):
+    with pytest.raises(ParamError):
+        ExploreParams.from_mapping(bad)
+
+
+def test_every_param_is_documented():
+    docs = describe()
+    assert [d.name for d in docs][:11] == ['robot_base_frame', 'costmap_topic', 'costmap_updates_topic',
+                                           'transform_tolerance', 'visualize', 'planner_frequency',
+                                           'progress_timeout', 'potential_scale', 'orientation_scale',
+                                           'gain_scale', 'min_frontier_size']
+    assert all(d.doc for d in docs) and not any(d.extension for d in docs[:11]) and all(d.extension for d in docs[11:])
