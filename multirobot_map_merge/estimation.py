@@ -45,9 +45,27 @@ def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSett
 
 def match_all(prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSettings,
               pool: ThreadPoolExecutor) -> List[PairMatch]:
+    """Match every pair by descriptors, then search (costly) only pairs that would join unconnected groups."""
     jobs = [(i, j) for i, j in combinations(range(len(prepared)), 2)
             if prepared[i] is not None and prepared[j] is not None]
-    return list(pool.map(lambda ij: match_pair(ij[0], ij[1], prepared[ij[0]], prepared[ij[1]], settings), jobs))
+    results = dict(zip(jobs, pool.map(
+        lambda ij: match_pair(ij[0], ij[1], prepared[ij[0]], prepared[ij[1]], settings, search=False), jobs)))
+    groups = nx.utils.UnionFind(range(len(prepared)))
+    for (i, j), m in results.items():
+        if m.accepted:
+            groups.union(i, j)
+    pending = [ij for ij, m in results.items() if not m.accepted]
+    while pending:
+        batch = [ij for ij in pending if groups[ij[0]] != groups[ij[1]]][:settings.threads]
+        if not batch:
+            break
+        pending = [ij for ij in pending if ij not in batch]
+        for ij, m in zip(batch, pool.map(
+                lambda ij: match_pair(ij[0], ij[1], prepared[ij[0]], prepared[ij[1]], settings), batch)):
+            results[ij] = m
+            if m.accepted:
+                groups.union(*ij)
+    return [results[ij] for ij in jobs]
 
 
 def pick_component(graph: nx.Graph, preferred: Optional[int]) -> List[int]:

@@ -122,20 +122,38 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
     model = start.copy()
     if len(src) < 10 or len(pj.walls) < 10:
         return model
-    # shrinking correspondence radius: coarse capture first, then precise
-    radii = np.linspace(s.icp_start_radius, s.icp_end_radius, s.icp_iterations)
-    for radius in radii:
-        moved = tf.apply(model, src)
-        nn, dist = pj.nearest(moved)
-        close = dist < radius
-        if close.sum() < 10:
-            break
-        step = tf.kabsch(moved[close], nn[close])
-        model = step @ model
-        if abs(step[1, 0]) < 1e-5 and np.abs(step[:2, 2]).max() < 1e-3:
-            if radius <= s.icp_end_radius + 1e-9:
+    # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
+    for radius in s.icp_radii:
+        for _ in range(s.icp_iterations):
+            moved = tf.apply(model, src)
+            nn, dist = pj.nearest(moved)
+            close = dist < radius
+            if close.sum() < 10:
+                return model
+            step = tf.kabsch(moved[close], nn[close])
+            model = step @ model
+            if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
                 break
     return model
+
+
+def quick_agreement(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings,
+                    rng: np.random.Generator) -> float:
+    """Share of sampled walls of i that land near a wall of j, among those landing on j's known area.
+
+    A cheap screen before ICP: hypotheses from unrelated maps score near zero, rough but right ones well above.
+    """
+    src = pi.walls
+    if len(src) > s.screen_points:
+        src = src[rng.choice(len(src), s.screen_points, replace=False)]
+    moved = np.rint(tf.apply(model, src)).astype(np.int64)
+    h, w = pj.work.shape
+    inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h)
+    x, y = moved[inside, 0], moved[inside, 1]
+    on_known = pj.work[y, x] >= 0
+    if on_known.sum() < 20:
+        return 0.0
+    return float((pj.wall_distance[y[on_known], x[on_known]] <= s.screen_tolerance).mean())
 
 
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
@@ -189,13 +207,23 @@ def distinct(a: Placement, b: Placement, pi: PreparedGrid, s: EstimationSettings
     return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
 
 
-def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings) -> PairMatch:
-    """Match grids i and j; the result's transform_m maps metric points of map i into map j."""
+def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
+               search: bool = True) -> PairMatch:
+    """Match grids i and j; the result's transform_m maps metric points of map i into map j.
+
+    With search=False, only descriptor matches propose placements (cheap); otherwise a correlation search adds
+    candidates when they found no plausible one.
+    """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
 
-    def refine(model: np.ndarray) -> Placement:
+    def refine(model: np.ndarray, screen: bool = True) -> Optional[Placement]:
+        if screen and quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
+            return None
         return verify(pi, pj, icp(pi, pj, model, s, rng), s)
+
+    def refine_all(models, screen: bool = True) -> List[Placement]:
+        return [c for c in (refine(m, screen) for m in models) if c is not None]
 
     pairs = putative_matches(pi, pj, s.ratio)
     result.matches = len(pairs)
@@ -204,18 +232,19 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # a placement that agrees beats any that does not, however large
         return plausible(c, s), c.support
 
-    candidates = [refine(h) for h in hypotheses(p, q, s, rng)]
+    candidates = refine_all(hypotheses(p, q, s, rng))
     best = max(candidates, key=rank, default=None)
-    if best is None or not plausible(best, s):
+    if search and (best is None or not plausible(best, s)):
         # too few good descriptor matches (small overlaps): search placements by correlation instead
-        candidates += [refine(m) for m in correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees)]
+        candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees))
         best = max(candidates, key=rank, default=None)
     if best is None:
         result.reason = 'no rigid model'
         return result
     if plausible(best, s):
         # only worth the extra work for a placement that could be accepted
-        candidates += [refine(m) for m in symmetric_alternatives(pi, pj, best)]
+        # unscreened: a turned placement is far off until ICP pulls it in
+        candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
     candidates.sort(key=rank, reverse=True)
     best = candidates[0]
     result.best = best

@@ -17,10 +17,12 @@ class EstimationSettings:
     ransac_iterations: int = 2000
     max_hypotheses: int = 5           # rigid models tried per pair
     min_inliers: int = 4              # RANSAC inliers a model needs
-    icp_iterations: int = 30
-    icp_start_radius: float = 6.0     # pixels
-    icp_end_radius: float = 2.0
-    icp_max_points: int = 4000
+    screen_points: int = 600          # wall pixels sampled to screen a hypothesis before refining it
+    screen_tolerance: float = 4.0     # pixels
+    screen_min_agreement: float = 0.5
+    icp_radii: tuple = (6.0, 4.0, 3.0, 2.0)  # pixels: correspondence radius of each ICP level
+    icp_iterations: int = 6           # at most, per level
+    icp_max_points: int = 2000
     verify_tolerance: float = 2.0     # pixels: a wall "agrees" when the other map has a wall this close
     min_agreement: float = 0.85       # share of walls in the common area that agree
     min_overlap_m2: float = 4.0       # common known area a pair needs
@@ -38,7 +40,7 @@ class EstimationSettings:
         if self.feature not in FEATURE_TYPES:
             raise ValueError(f"feature must be one of {', '.join(FEATURE_TYPES)}, not '{self.feature}'")
         positive = ('min_work_resolution', 'ratio', 'ransac_threshold', 'ransac_iterations', 'max_hypotheses',
-                    'icp_start_radius', 'icp_end_radius', 'icp_max_points', 'verify_tolerance', 'threads')
+                    'icp_iterations', 'icp_max_points', 'verify_tolerance', 'threads')
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f'{name} must be positive, not {getattr(self, name)}')

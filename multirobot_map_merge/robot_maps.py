@@ -1,0 +1,84 @@
+"""Per-robot map storage (map_merge.md §4), pure and thread safe.
+
+Each `RobotMap` holds the newest Grid of one robot behind one lock. Grids are copy-on-write: a stored Grid and its
+array are never modified after they are stored (a partial update builds a new array), so a snapshot handed to the
+merger stays consistent without holding the lock (fixes the original's data race, §13.9).
+
+Differences from the original, on purpose:
+  * §13.5: the original drops a full map whose stamp is older than the stored map, and the stored map's stamp is that
+    of the last *partial update*, so a full map (even one that changes the map size) can be lost for good. Here a full
+    map is dropped only when it is older than the last *full* map (out-of-order delivery) and has the same size; a
+    full map of a new size always replaces the stored one.
+  * §13.4: clipped updates are read with the update's own row stride (cell (cx, cy) gets data[cy - y, cx - x]).
+  * Updates are checked: negative position, data shape != height x width, or a rectangle that does not intersect the
+    grid are rejected with a reason, and the stored map is left unchanged.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .grid import Grid
+from .ros_conversions import GridUpdate
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    applied: bool
+    reason: str = ''        # why it was rejected, or what was clipped ('' when applied whole)
+
+
+class RobotMap:
+    """The map of one robot: full maps replace, partial updates patch a copy."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()   # owns _grid and _last_full_stamp
+        self._grid: Optional[Grid] = None
+        self._last_full_stamp: Optional[float] = None
+
+    def snapshot(self) -> Optional[Grid]:
+        """The current grid (never mutated afterwards), or None before the first full map."""
+        with self._lock:
+            return self._grid
+
+    def set_full(self, grid: Grid) -> bool:
+        """Store a full map; False if it is an out-of-order older copy of the same-sized map."""
+        with self._lock:
+            old = self._grid
+            if (old is not None and self._last_full_stamp is not None and grid.stamp < self._last_full_stamp
+                    and old.data.shape == grid.data.shape):
+                return False
+            self._grid = grid
+            self._last_full_stamp = grid.stamp
+            return True
+
+    def apply_update(self, update: GridUpdate) -> UpdateResult:
+        """Patch the stored map with a partial update (clipped at the grid edge)."""
+        x, y, w, h = int(update.x), int(update.y), int(update.width), int(update.height)
+        data = np.asarray(update.data)
+        if x < 0 or y < 0:
+            return UpdateResult(False, f'negative coordinates x {x}, y {y}')
+        if w < 0 or h < 0 or data.size != w * h:
+            return UpdateResult(False, f'data has {data.size} cells, expected {w} x {h}')
+        data = data.reshape(h, w)
+        with self._lock:
+            old = self._grid
+            if old is None:
+                return UpdateResult(False, "no full map received yet to apply it to")
+            if update.stamp < old.stamp:
+                # as the original (§4.2 step 7): an update older than the stored map is stale
+                return UpdateResult(False, f'stamp {update.stamp:.3f} older than the stored map ({old.stamp:.3f})')
+            gh, gw = old.data.shape
+            if w and h and (x >= gw or y >= gh):
+                return UpdateResult(False, f'rectangle at x {x}, y {y} lies outside the {gw} x {gh} map')
+            cw, ch = min(w, gw - x), min(h, gh - y)
+            new_data = old.data.copy()
+            new_data[y:y + ch, x:x + cw] = data[:ch, :cw]
+            self._grid = Grid(new_data, old.resolution, old.origin, old.frame_id, update.stamp, dict(old.extra))
+        if (cw, ch) != (w, h):
+            return UpdateResult(True, f'update {w} x {h} at x {x}, y {y} does not fully fit into the {gw} x {gh} '
+                                      f'map; only {cw} x {ch} cells copied')
+        return UpdateResult(True)
