@@ -1,0 +1,180 @@
+"""Behaviour of the merging core beyond the original's suite: composition rule, known poses in metres and the
+legacy cell semantics, heterogeneous resolutions, no-overlap pairs, rotated chains, and the merge_maps CLI."""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.cli import main as merge_maps
+from multirobot_map_merge.compose import compose
+from multirobot_map_merge.grid import Grid
+from multirobot_map_merge.known_poses import InitPose
+from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.pipeline import MergingPipeline
+
+from test_merging_pipeline import placement_error, scenario
+
+
+def test_compose_takes_signed_maximum():
+    a = Grid(np.array([[-1, 0, 100, -1]], np.int8), 1.0)
+    b = Grid(np.array([[0, -1, 0, 37]], np.int8), 1.0)
+    merged = compose([a, b], [np.eye(3), np.eye(3)])
+    assert merged.data.tolist() == [[0, 0, 100, 37]]
+
+
+def test_known_pose_places_cells_in_metres():
+    data = np.full((20, 30), -1, np.int8)
+    data[5, 7] = 100
+    g = Grid(data, 0.1, (-1.0, -0.5, 0.0))
+    pose = InitPose(2.0, -3.0, math.pi / 2)
+    p = MergingPipeline()
+    p.feed([g])
+    p.set_known_poses([pose])
+    merged = p.compose('world')
+    # the occupied cell's centre in the robot's map frame, then in the world through the pose
+    in_map = np.array([[-1.0 + 7.5 * 0.1, -0.5 + 5.5 * 0.1]])
+    expected = tf.apply(tf.rigid(pose.x, pose.y, pose.yaw), in_map)[0]
+    rows, cols = np.nonzero(merged.data == 100)
+    assert len(rows) == 1
+    centre = (merged.origin[0] + (cols[0] + 0.5) * merged.resolution,
+              merged.origin[1] + (rows[0] + 0.5) * merged.resolution)
+    assert centre == pytest.approx(expected, abs=0.051)
+
+
+def test_known_poses_merge_without_overlap():
+    a = Grid(np.zeros((10, 10), np.int8), 0.1)
+    b = Grid(np.full((10, 10), 100, np.int8), 0.1)
+    p = MergingPipeline()
+    p.feed([a, b])
+    p.set_known_poses([InitPose(0, 0, 0), InitPose(5.0, 0, 0)])
+    merged = p.compose()
+    assert merged.width == 60 and merged.height == 10
+    assert (merged.data == 0).sum() == 100 and (merged.data == 100).sum() == 100
+
+
+def test_legacy_cell_poses_reproduce_the_original():
+    """map_merge.md §8.3 worked example: with poses A (0,0,0) and B (-3,1,0), B's cell (0,0) lands at (+3,-1)
+    cells relative to A's cell (0,0); origins and resolution are ignored."""
+    a = np.full((10, 10), -1, np.int8)
+    a[0, 0] = 0
+    b = np.full((10, 10), -1, np.int8)
+    b[0, 0] = 100
+    grids = [Grid(a, 0.05, (-7.0, 2.0, 0.0)), Grid(b, 0.05, (13.0, -4.0, 0.0))]
+    p = MergingPipeline()
+    p.feed(grids)
+    p.set_known_poses([InitPose(0, 0, 0), InitPose(-3, 1, 0)], legacy=True)
+    merged = p.compose()
+    (ra,), (ca,) = np.nonzero(merged.data == 0)
+    (rb,), (cb,) = np.nonzero(merged.data == 100)
+    assert (cb - ca, rb - ra) == (3, -1)
+
+
+def test_legacy_yaw_turns_clockwise_about_the_corner():
+    g = np.full((10, 10), -1, np.int8)
+    g[0, 0] = 0
+    g[0, 5] = 100   # a cell on the grid's +x axis
+    p = MergingPipeline()
+    p.feed([Grid(g, 0.05)])
+    p.set_known_poses([InitPose(0, 0, math.pi / 2)], legacy=True)
+    merged = p.compose()
+    (r0,), (c0,) = np.nonzero(merged.data == 0)
+    (r1,), (c1,) = np.nonzero(merged.data == 100)
+    assert (c1 - c0, r1 - r0) == (0, -5)   # +x ends up along -y
+
+
+@pytest.mark.parametrize('name', ['pair_none_cave_1', 'pair_none_hospital_section_1', 'pair_none_depot_2'])
+def test_maps_sharing_no_area_are_not_merged(shared_dir, name):
+    grids, _ = scenario(shared_dir, name)
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    assert sum(t is not None for t in p.transforms) == 1
+
+
+def test_heterogeneous_resolutions_are_placed_rigidly(shared_dir):
+    grids, truth = scenario(shared_dir, 'hetero4_depot')
+    assert len({g.resolution for g in grids}) == 2
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    ref = p.reference
+    for k, t in enumerate(p.transforms):
+        assert t is not None
+        assert tf.params(t)[3] == pytest.approx(1.0)
+        rot, cells = placement_error(truth, p.transforms, ref, k)
+        assert rot <= 1.5 and cells <= 3
+
+
+def test_rotated_chain_of_three_maps(shared_dir):
+    """Three maps at different rotations: the one two hops from the reference is placed right too."""
+    grids, truth = scenario(shared_dir, 'group3_autolab')
+    yaws = sorted(m['pose'][2] for m in truth['maps'])
+    assert min(abs(a - b) for a, b in zip(yaws, yaws[1:])) > 0.1
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    for k in range(3):
+        rot, cells = placement_error(truth, p.transforms, p.reference, k)
+        assert rot <= 1.5 and cells <= 3
+
+
+def test_unchanged_grids_are_not_recomputed(shared_dir):
+    grids, _ = scenario(shared_dir, 'pair_large_depot_1')
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    misses = p.cache.misses
+    p.feed([g.copy() for g in grids])
+    p.estimate()
+    assert p.cache.misses == misses and p.cache.hits >= len(grids)
+
+
+def test_merge_maps_cli_on_sample_maps(repo_root, tmp_path):
+    maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'three_robots').glob('map_*.yaml'))
+    out = tmp_path / 'merged'
+    rc = merge_maps(['--output', str(out), '--transforms-json', str(tmp_path / 't.json'), *maps])
+    assert rc == 0
+    merged = load_map(str(out) + '.yaml')
+    assert (tmp_path / 'merged.png').stat().st_size > 0
+    doc = json.loads((tmp_path / 't.json').read_text())
+    assert [m['file'] for m in doc['maps']] == maps and all(m['included'] for m in doc['maps'])
+    truth = json.loads((repo_root / 'data' / 'samples' / 'three_robots' / 'truth.json').read_text())
+    est = [tf.rigid(m['transform']['x'], m['transform']['y'], m['transform']['yaw']) for m in doc['maps']]
+    for k in range(3):
+        rot, cells = placement_error(truth, est, 0, k)
+        assert rot <= 1.5 and cells <= 3
+    assert merged.width * merged.height > max(load_map(m).data.size for m in maps) / 2
+
+
+def test_merge_maps_cli_known_poses_and_no_overlap(repo_root, tmp_path):
+    maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'no_overlap').glob('map_*.yaml'))
+    rc = merge_maps(['--output', str(tmp_path / 'a'), '--transforms-json', str(tmp_path / 'a.json'), *maps])
+    assert rc == 0
+    assert sum(m['included'] for m in json.loads((tmp_path / 'a.json').read_text())['maps']) == 1
+    truth = json.loads((repo_root / 'data' / 'samples' / 'no_overlap' / 'truth.json').read_text())
+    poses = tmp_path / 'poses.yaml'
+    poses.write_text('poses:\n' + ''.join(f"  {m['file']}: {m['pose']}\n" for m in truth['maps']))
+    rc = merge_maps(['--known-poses', str(poses), '--output', str(tmp_path / 'b'),
+                     '--transforms-json', str(tmp_path / 'b.json'), *maps])
+    assert rc == 0
+    assert all(m['included'] for m in json.loads((tmp_path / 'b.json').read_text())['maps'])
+
+
+@pytest.mark.parametrize('args, reason', [
+    (['/nonexistent/map.yaml'], 'map file not found'),
+    (['--feature', 'akaze', '--confidence', 'nan', 'MAP'], 'NaN'),
+    (['--known-poses', '/nonexistent/poses.yaml', 'MAP'], 'cannot read poses file'),
+    (['--legacy-cell-poses', 'MAP'], 'needs --known-poses'),
+])
+def test_merge_maps_cli_bad_input_exits_2_with_one_line(repo_root, args, reason):
+    sample = str(repo_root / 'data' / 'samples' / 'three_robots' / 'map_00.yaml')
+    args = [sample if a == 'MAP' else a for a in args]
+    proc = subprocess.run([sys.executable, str(repo_root / 'nodes' / 'merge_maps'), *args],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = [l for l in proc.stderr.splitlines() if 'error' in l]
+    assert len(lines) == 1 and reason in lines[0]
