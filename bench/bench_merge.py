@@ -1,0 +1,183 @@
+#!/usr/bin/env python3
+"""Benchmark of the merging core (not a test: it prints figures and their ratio to the targets).
+
+    scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--markdown FILE]
+
+Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
+Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
+pipeline with unchanged grids. Times are medians over --repeat runs. Timings on a shared machine are inflated.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+CANVAS = 2048
+# row name -> (scenario folder, label); "canvas8" pastes group8_cave into 2048x2048 canvases,
+# "truth30" composes large30 with the ground-truth transforms (no estimation).
+ROWS: Dict[str, Tuple[str, str]] = {
+    'pair2': ('pair_large_hospital_section_1', '2 maps'),
+    'group4': ('group4_hospital_section', '4 maps'),
+    'group8': ('group8_cave', '8 maps'),
+    'large30': ('large30_hospital_section', '30 maps'),
+    'canvas2': ('canvas2_hospital_section', '2 canvas maps'),
+    'canvas4': ('canvas4_cave', '4 canvas maps'),
+    'canvas8': ('group8_cave', '8 canvas maps (pasted)'),
+    'truth30': ('large30_hospital_section', '30 maps, truth tf (compose only)'),
+}
+QUICK = ['pair2', 'group4']
+EST_TARGET_S, CPP_CANVAS8_S, CPP_LARGE30_S, COMPOSE_TARGET_S = 2.0, (7.0, 13.0), 73.0, 0.250
+
+
+def load_scenario(folder: Path) -> Tuple[list, dict]:
+    from multirobot_map_merge.mapio import load_map
+    truth = json.loads((folder / 'truth.json').read_text())
+    return [load_map(str(folder / m['file'])) for m in truth['maps']], truth
+
+
+def to_canvas(grid):
+    """Paste grid into the centre of an unknown CANVAS x CANVAS grid; the map frame is unchanged."""
+    from multirobot_map_merge.grid import Grid
+    dy, dx = (CANVAS - grid.height) // 2, (CANVAS - grid.width) // 2
+    data = np.full((CANVAS, CANVAS), -1, np.int8)
+    data[dy:dy + grid.height, dx:dx + grid.width] = grid.data
+    ox, oy = (grid.cell_to_map() @ np.array([-dx, -dy, 1.0]))[:2]   # old origin - offset * resolution
+    return Grid(data, grid.resolution, (ox, oy, grid.origin[2]), grid.frame_id)
+
+
+def peak_rss_mib() -> float:
+    """Peak resident set of this process: VmHWM if available, else ru_maxrss (KiB on Linux)."""
+    try:
+        for line in Path('/proc/self/status').read_text().splitlines():
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def med(xs: List[float]) -> Optional[float]:
+    return statistics.median(xs) if xs else None
+
+
+def run_row(name: str, data_dir: Path, repeat: int) -> dict:
+    """Measure one row in this process; returns medians and the peak RSS."""
+    from multirobot_map_merge import transforms as tf
+    from multirobot_map_merge.pipeline import MergingPipeline
+    from multirobot_map_merge.settings import EstimationSettings
+    grids, truth = load_scenario(data_dir / ROWS[name][0])
+    if name == 'canvas8':
+        grids = [to_canvas(g) for g in grids]
+    rss_loaded = peak_rss_mib()
+    cold: List[float] = []
+    warm: List[float] = []
+    comp: List[float] = []
+    placed = 0
+    for _ in range(repeat):
+        pipeline = MergingPipeline(EstimationSettings())
+        pipeline.feed(grids)
+        if name == 'truth30':
+            pipeline.set_transforms([tf.rigid(*m['pose']) for m in truth['maps']])
+        else:
+            cold.append(pipeline.estimate().seconds)
+            warm.append(pipeline.estimate().seconds)
+        pipeline.compose('world')
+        comp.append(pipeline.compose_seconds)
+        placed = sum(t is not None for t in pipeline.transforms)
+    return {'name': name, 'maps': len(grids), 'cold': med(cold), 'warm': med(warm), 'compose': med(comp),
+            'placed': placed, 'mergeable': len(truth.get('mergeable', truth['maps'])),
+            'size': f'{grids[0].width}x{grids[0].height}', 'rss_loaded': rss_loaded, 'rss_peak': peak_rss_mib()}
+
+
+def spawn_row(name: str, data_dir: Path, repeat: int) -> Optional[dict]:
+    cmd = [sys.executable, __file__, '--row', name, '--data', str(data_dir), '--repeat', str(repeat)]
+    print(f'... {name}', file=sys.stderr, flush=True)
+    proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+    if proc.returncode != 0:
+        print(f'row {name} failed (exit {proc.returncode})', file=sys.stderr)
+        return None
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def fmt(v: Optional[float], scale: float = 1.0, digits: int = 2) -> str:
+    return '-' if v is None else f'{v * scale:.{digits}f}'
+
+
+def table(results: List[dict]) -> List[str]:
+    head = ['row', 'maps', 'map size', 'est. cold (s)', 'est. warm (s)', 'compose (ms)', 'placed/mergeable',
+            'RSS loaded (MiB)', 'peak RSS (MiB)']
+    lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    for r in results:
+        cells = [ROWS[r['name']][1], str(r['maps']), r['size'], fmt(r['cold']), fmt(r['warm'], digits=3),
+                 fmt(r['compose'], 1000, 1), f"{r['placed']}/{r['mergeable']}", fmt(r['rss_loaded'], digits=0),
+                 fmt(r['rss_peak'], digits=0)]
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return lines
+
+
+def targets(results: List[dict]) -> List[str]:
+    by = {r['name']: r for r in results}
+    out = []
+    if 'canvas8' in by and by['canvas8']['cold'] is not None:
+        t = by['canvas8']['cold']
+        out.append(f'- 8 canvas-size maps estimated in under {EST_TARGET_S:.0f} s: {t:.2f} s = '
+                   f'{t / EST_TARGET_S:.2f} x target ({"met" if t < EST_TARGET_S else "MISSED"}); '
+                   f'C++ {CPP_CANVAS8_S[0]:.0f}-{CPP_CANVAS8_S[1]:.0f} s -> '
+                   f'{CPP_CANVAS8_S[0] / t:.1f}-{CPP_CANVAS8_S[1] / t:.1f} x faster')
+    if 'large30' in by and by['large30']['cold'] is not None:
+        t = by['large30']['cold']
+        out.append(f'- 30-map scenario estimated: {t:.2f} s; C++ {CPP_LARGE30_S:.0f} s -> '
+                   f'{CPP_LARGE30_S / t:.1f} x faster')
+    if 'truth30' in by:
+        t = by['truth30']['compose']
+        out.append(f'- 30 maps composed in under {COMPOSE_TARGET_S * 1000:.0f} ms: {t * 1000:.1f} ms = '
+                   f'{t / COMPOSE_TARGET_S:.2f} x target ({"met" if t < COMPOSE_TARGET_S else "MISSED"})')
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--data', type=Path, default=REPO / '..' / 'shared' / 'data' / 'dev')
+    ap.add_argument('--repeat', type=int, default=3)
+    ap.add_argument('--quick', action='store_true', help='only the 2- and 4-map rows, 1 repeat')
+    ap.add_argument('--markdown', type=Path, help='also write the table as Markdown to this file')
+    ap.add_argument('--row', choices=list(ROWS), help=argparse.SUPPRESS)   # internal: one row, JSON out
+    args = ap.parse_args()
+    data_dir = args.data.resolve()
+    if not data_dir.is_dir():
+        print(f'bench_merge: data directory {data_dir} not found (use --data DIR)', file=sys.stderr)
+        return 2
+    if args.row:
+        print(json.dumps(run_row(args.row, data_dir, max(1, args.repeat))))
+        return 0
+    names = QUICK if args.quick else list(ROWS)
+    repeat = 1 if args.quick else max(1, args.repeat)
+    missing = [ROWS[n][0] for n in names if not (data_dir / ROWS[n][0] / 'truth.json').is_file()]
+    if missing:
+        print(f'bench_merge: scenarios missing in {data_dir}: {", ".join(sorted(set(missing)))}', file=sys.stderr)
+        return 2
+    results = [r for r in (spawn_row(n, data_dir, repeat) for n in names) if r is not None]
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
+    lines = [f'merging core benchmark: {repeat} repeat(s), median; {cpus} CPUs, load average '
+             f'{os.getloadavg()[0]:.2f} (timings are inflated on a busy machine)', '', *table(results), '',
+             *targets(results)]
+    print('\n'.join(lines))
+    if args.markdown:
+        args.markdown.write_text('\n'.join(lines) + '\n')
+    return 0 if len(results) == len(names) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
