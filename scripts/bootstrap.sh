@@ -79,7 +79,7 @@ if [[ "$(readlink "$link" 2>/dev/null || true)" != "../.." ]]; then
 fi
 build_hash=$(
   cd "$REPO"
-  { echo "$REPO"; sha256sum package.xml CMakeLists.txt setup.py; find msg -maxdepth 1 -type f -print0 2>/dev/null \
+  { echo "$REPO venv-python"; ls nodes; sha256sum package.xml CMakeLists.txt setup.py; find msg -maxdepth 1 -type f -print0 2>/dev/null \
       | sort -z | xargs -0r sha256sum; } | sha256sum | cut -d' ' -f1
 )
 build_stamp="$WS/.build.sha256"
@@ -90,9 +90,10 @@ if [[ ! -f "$WS/devel/setup.bash" || "$(cat "$build_stamp" 2>/dev/null || true)"
   fi
   log "catkin_make (log: .ws/catkin_make.log)"
   rm -f "$build_stamp"
-  # Plain system python for the build; the pyenv python3 on PATH cannot import catkin.
+  # The venv's python (made from /usr/bin/python3; the pyenv python3 on PATH cannot import catkin): the node
+  # relay scripts catkin writes into devel/ get it as their interpreter, so nodes see the pinned numpy/OpenCV.
   run_quiet "$WS/catkin_make.log" env PATH="/usr/bin:/bin:$PATH" PYTHONDONTWRITEBYTECODE=1 \
-    catkin_make -C "$WS" -DPYTHON_EXECUTABLE="$SYS_PY" -DCATKIN_ENABLE_TESTING=OFF
+    catkin_make -C "$WS" -DPYTHON_EXECUTABLE="$VENV/bin/python3" -DCATKIN_ENABLE_TESTING=OFF
   echo "$build_hash" >"$build_stamp"
   did+=(catkin)
 fi
