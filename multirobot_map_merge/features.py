@@ -16,7 +16,6 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from . import transforms as tf
 from .grid import Grid
 
 log = logging.getLogger('rosout.multirobot_map_merge.features')

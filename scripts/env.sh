@@ -13,8 +13,12 @@ if [[ $# -eq 0 ]]; then
   echo "usage: $0 CMD [ARGS...]" >&2
   exit 2
 fi
+# setup.bash parses the positional parameters a plain `source` passes on (--extend, ...): hide the command's
+cmd=("$@")
+set --
 # shellcheck disable=SC1091
 source "$WS/devel/setup.bash"
+set -- "${cmd[@]}"
 export VIRTUAL_ENV="$REPO/.venv"
 export PATH="$VIRTUAL_ENV/bin:$PATH"
 export ROS_HOME="$WS/ros_home"

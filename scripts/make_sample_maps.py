@@ -26,6 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'
 from fleet_sim.laser import beam_angles, cast  # noqa: E402
 from fleet_sim.mapping import LogOddsMap, relative_pose  # noqa: E402
 from fleet_sim.world import make_floor_plan, obstacle_mask  # noqa: E402
+from multirobot_map_merge.features import crop_to_known  # noqa: E402
 from multirobot_map_merge.grid import Grid  # noqa: E402
 from multirobot_map_merge.mapio import save_map, save_png  # noqa: E402
 
@@ -108,20 +109,15 @@ def drive(free: np.ndarray, start: Tuple[float, float, float], goals: Sequence, 
 # ----------------------------------------------------------------------------------------------- maps
 
 def crop_known(grid: Grid, margin: int = 10) -> Grid:
-    known = grid.known_mask()
-    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
-    r0, r1 = max(0, rows[0] - margin), min(grid.height, rows[-1] + 1 + margin)
-    c0, c1 = max(0, cols[0] - margin), min(grid.width, cols[-1] + 1 + margin)
+    r0, r1, c0, c1 = crop_to_known(grid.data, margin)
     ox, oy, _ = grid.origin
     return Grid(grid.data[r0:r1, c0:c1], grid.resolution, (ox + c0 * grid.resolution, oy + r0 * grid.resolution, 0.0),
                 grid.frame_id)
 
 
 def known_bbox(grid: Grid) -> List[List[float]]:
-    known = grid.known_mask()
-    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
-    corners = np.array([[cols[0], rows[0], 1], [cols[-1] + 1, rows[0], 1], [cols[-1] + 1, rows[-1] + 1, 1],
-                        [cols[0], rows[-1] + 1, 1]], float)
+    r0, r1, c0, c1 = crop_to_known(grid.data, margin=0)
+    corners = np.array([[c0, r0, 1], [c1, r0, 1], [c1, r1, 1], [c0, r1, 1]], float)
     pts = (grid.cell_to_map() @ corners.T).T[:, :2]
     return [[round(float(x), 6), round(float(y), 6)] for x, y in pts]
 
