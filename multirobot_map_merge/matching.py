@@ -31,6 +31,12 @@ class Placement:
     support: int = 0            # wall pixels (of both maps) that lie on a wall of the other map
     agreement: float = 0.0      # support / wall pixels of both maps inside the common known area
     overlap_m2: float = 0.0     # common known area
+    conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
+
+    def score(self, conflict_weight: float) -> float:
+        """Support less weighted conflicts: a shifted alias in a repetitive building overlaps more (more support)
+        but also contradicts more than the right placement, which contradicts almost nowhere."""
+        return self.support - conflict_weight * self.conflicts
 
 
 @dataclass
@@ -172,8 +178,45 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     tol = s.verify_tolerance
     support = int((walls_i & (pj.wall_distance <= tol)).sum()) + int((walls_j & (dist_i <= tol)).sum())
     result.support = support
+    result.conflicts = n_i + n_j - support
     result.agreement = support / float(n_i + n_j)
     return result
+
+
+def _free_side(work: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the direction (unnormalised) towards the free space next to it."""
+    free = cv2.GaussianBlur((work == 0).astype(np.float32), (0, 0), 2.0)
+    return cv2.Sobel(free, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(free, cv2.CV_32F, 0, 1, ksize=3)
+
+
+def opposite_sides(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> float:
+    """Share of the agreeing walls that the two maps see from opposite sides.
+
+    Two robots on either side of a wall each map only their own face of it; matching those faces puts the maps a
+    wall's thickness off (often more than the placement tolerance). Where the common evidence is mostly such faces,
+    the placement is not known precisely enough to merge.
+    """
+    h, w = pj.work.shape
+    warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
+    near_i = cv2.distanceTransform(np.where(warped >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    agreeing = (pj.work >= 50) & (near_i <= s.verify_tolerance) & (warped >= 0)
+    rows, cols = np.nonzero(agreeing)
+    if rows.size == 0:
+        return 0.0
+    r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
+    c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
+    gxi, gyi = _free_side(warped[r0:r1, c0:c1])
+    gxj, gyj = _free_side(pj.work[r0:r1, c0:c1])
+    rr, cc = rows - r0, cols - c0
+    # the wall pixel of i may sit a pixel or two beside j's: take i's direction over a small neighbourhood
+    gxi, gyi = cv2.blur(gxi, (5, 5)), cv2.blur(gyi, (5, 5))
+    dot = gxi[rr, cc] * gxj[rr, cc] + gyi[rr, cc] * gyj[rr, cc]
+    mag = np.hypot(gxi[rr, cc], gyi[rr, cc]) * np.hypot(gxj[rr, cc], gyj[rr, cc])
+    sided = mag > 1e-3
+    if sided.sum() < 10:
+        return 0.0
+    return float((dot[sided] < -0.3 * mag[sided]).mean())
 
 
 def plausible(c: Placement, s: EstimationSettings) -> bool:
@@ -230,7 +273,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
     def rank(c: Placement):
         # a placement that agrees beats any that does not, however large
-        return plausible(c, s), c.support
+        return plausible(c, s), c.score(s.conflict_weight)
 
     candidates = refine_all(hypotheses(p, q, s, rng))
     best = max(candidates, key=rank, default=None)
@@ -254,8 +297,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.confidence = result.inliers / (8.0 + 0.3 * result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
 
+    best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c, best, pi, s) and plausible(c, s)
-                  and c.support >= s.ambiguity_ratio * best.support), None)
+                  and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
     if best.agreement < s.min_agreement:
         result.reason = f'agreement {best.agreement:.2f} < {s.min_agreement:.2f}'
     elif best.overlap_m2 < s.min_overlap_m2:
@@ -265,6 +309,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     elif rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
+    elif opposite_sides(pi, pj, best.transform, s) > s.max_opposite_share:
+        result.reason = 'the maps share mostly walls seen from opposite sides'
     elif result.confidence < s.confidence:
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
     else:

@@ -1,8 +1,8 @@
 """Candidate placements without descriptors: rotation by wall directions, translation by cross-correlation.
 
 Small overlaps give too few descriptor matches for RANSAC. Here, at a coarse resolution, grid i is turned by
-candidate angles (the differences of the grids' dominant wall directions modulo 90 degrees, plus a sweep for
-maps without straight walls) and slid over grid j by FFT cross-correlation of
+candidate angles (a sweep, plus the differences of the grids' dominant wall directions modulo 90 degrees) and
+slid over grid j by FFT cross-correlation of
     walls_i * walls_j  -  penalty * (walls_i * open_j + open_i * walls_j)
 (open = free and away from walls). The best peaks are returned as pixel transforms i -> j for refinement and
 verification by the matcher; nothing here decides whether a pair is accepted.
@@ -60,11 +60,14 @@ def wall_direction(work: np.ndarray) -> Tuple[float, float]:
 
 
 def rotation_candidates(ci: CoarseGrid, cj: CoarseGrid, sweep_degrees: float) -> List[float]:
-    """Angles (radians) to try for turning grid i onto grid j."""
+    """Angles (radians) to try for turning grid i onto grid j: a full sweep, plus the angles that align the
+    dominant wall directions when both grids have them (rasterised walls bias those directions towards
+    multiples of 45 degrees, so they alone can miss the right angle)."""
+    angles = list(np.radians(np.arange(0.0, 360.0, sweep_degrees)))
     if ci.strength > 0.08 and cj.strength > 0.08:
         base = cj.direction - ci.direction
-        return [base + k * math.pi / 2 + d for k in range(4) for d in (-0.02, 0.0, 0.02)]
-    return list(np.radians(np.arange(0.0, 360.0, sweep_degrees)))
+        angles += [base + k * math.pi / 2 + d for k in range(4) for d in (-0.02, 0.0, 0.02)]
+    return angles
 
 
 def _fft_shape(h: int, w: int) -> Tuple[int, int]:
