@@ -43,7 +43,8 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('maps', nargs='+', metavar='MAP.yaml')
     ap.add_argument('--confidence', type=float, default=defaults.confidence,
-                    help='Brown-Lowe confidence a pair needs (default %(default)s; pairs are also verified)')
+                    help='confidence inliers / (8 + 0.3 matches) a pair needs, counted on verified wall correspondences '
+                         '(default %(default)s as the C++ node; up to about 3.3 asks for more agreement)')
     ap.add_argument('--feature', default=defaults.feature, choices=FEATURE_TYPES,
                     help='keypoint detector (default %(default)s)')
     ap.add_argument('--known-poses', metavar='POSES.yaml', help='merge at known initial poses instead of estimating')

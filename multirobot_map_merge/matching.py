@@ -43,9 +43,13 @@ class Placement:
 class PairMatch:
     i: int
     j: int
+    # Brown-Lowe statistics on verified correspondences: matches = wall pixels of both maps in the common area,
+    # inliers = those with a wall of the other map near them (the placement's support); see pair_confidence()
     matches: int = 0
     inliers: int = 0
     confidence: float = 0.0
+    descriptor_matches: int = 0     # putative descriptor matches (ratio test), as the original counts them
+    descriptor_inliers: int = 0     # of those, consistent with the final placement
     accepted: bool = False
     reason: str = ''
     best: Optional[Placement] = None
@@ -250,6 +254,17 @@ def distinct(a: Placement, b: Placement, pi: PreparedGrid, s: EstimationSettings
     return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
 
 
+def pair_confidence(inliers: int, matches: int) -> float:
+    """The original's confidence, inliers / (8 + 0.3 matches) (Brown & Lowe), here on verified correspondences.
+
+    The original counts descriptor matches; on occupancy grids these are few and mostly wrong, so its threshold
+    (default 1.0) says little. Counted on wall pixels, 1.0 means about a third of the walls in the common area
+    agree; the acceptance rules (min_agreement etc.) are stricter, so the default threshold never decides alone,
+    and a higher one (up to about 3.3 = every wall agrees) asks for more agreement.
+    """
+    return inliers / (8.0 + 0.3 * matches)
+
+
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
                search: bool = True) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
@@ -269,8 +284,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         return [c for c in (refine(m, screen) for m in models) if c is not None]
 
     pairs = putative_matches(pi, pj, s.ratio)
-    result.matches = len(pairs)
+    result.descriptor_matches = len(pairs)
     p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
+
     def rank(c: Placement):
         # a placement that agrees beats any that does not, however large
         return plausible(c, s), c.score(s.conflict_weight)
@@ -293,8 +309,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.best = best
     result.alternatives = candidates[1:]
     if len(pairs):
-        result.inliers = int((np.hypot(*(tf.apply(best.transform, p) - q).T) < s.ransac_threshold).sum())
-    result.confidence = result.inliers / (8.0 + 0.3 * result.matches)
+        result.descriptor_inliers = int((np.hypot(*(tf.apply(best.transform, p) - q).T) < s.ransac_threshold).sum())
+    result.matches, result.inliers = best.support + best.conflicts, best.support
+    result.confidence = pair_confidence(result.inliers, result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
 
     best_score = best.score(s.conflict_weight)
@@ -315,7 +332,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
     else:
         result.accepted = True
-    log.debug('pair %d-%d: %d matches, %d inliers, confidence %.3f, agreement %.3f, overlap %.1f m2, %s',
-              i, j, result.matches, result.inliers, result.confidence, best.agreement, best.overlap_m2,
+    log.debug('pair %d-%d: %d descriptor matches (%d inliers), %d wall correspondences (%d inliers), confidence '
+              '%.3f, agreement %.3f, overlap %.1f m2, %s', i, j, result.descriptor_matches, result.descriptor_inliers,
+              result.matches, result.inliers, result.confidence, best.agreement, best.overlap_m2,
               'accepted' if result.accepted else result.reason)
     return result

@@ -10,7 +10,7 @@ from .features import FEATURE_TYPES
 @dataclass
 class EstimationSettings:
     feature: str = 'akaze'            # keypoint detector: akaze (as the C++ node), orb (as the thesis) or sift
-    confidence: float = 0.0           # Brown-Lowe confidence inliers / (8 + 0.3 matches) a pair needs (§9.5)
+    confidence: float = 1.0           # inliers / (8 + 0.3 matches) a pair needs, as the original (see pair_confidence)
     min_work_resolution: float = 0.05  # m/pixel: finer maps are matched at this resolution
     ratio: float = 0.8                # descriptor ratio test
     ransac_threshold: float = 3.0     # pixels
