@@ -178,3 +178,47 @@ def test_merge_maps_cli_bad_input_exits_2_with_one_line(repo_root, args, reason)
     assert proc.returncode == 2
     lines = [l for l in proc.stderr.splitlines() if 'error' in l]
     assert len(lines) == 1 and reason in lines[0]
+
+
+@pytest.mark.parametrize('name', ['pair_large_simple_rooms_1', 'pair_large_tb3_sandbox_1', 'pair_large_uoa_robotics_lab_1'])
+def test_repetitive_and_few_descriptor_pairs_are_placed(shared_dir, name):
+    """A shifted alias in a building of identical rooms overlaps more than the right placement, and a 180-degree
+    alias in a symmetric arena agrees well: ranking by support less conflicts picks the right one and does not
+    call it ambiguous. uoa_robotics_lab_1 has no descriptor inlier at all: the rotation sweep finds it."""
+    grids, truth = scenario(shared_dir, name)
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    assert all(t is not None for t in p.transforms)
+    rot, cells = placement_error(truth, p.transforms, 0, 1)
+    assert rot <= 1.5 and cells <= 3
+
+
+def test_walls_seen_from_opposite_sides_do_not_make_a_match():
+    """Robot A maps a room, robot B the corridor behind its wall: each sees only its own face of the wall, and
+    matching the faces puts the maps a wall's thickness off: such placements are recognised (and refused)."""
+    from multirobot_map_merge.features import prepare
+    from multirobot_map_merge.matching import opposite_sides
+    from multirobot_map_merge.settings import EstimationSettings
+    world = np.zeros((200, 240), np.int8)
+    world[100:106, 20:220] = 100            # a wall 30 cm thick between a room (below) and a corridor (above)
+    world[60:140, 18:20] = 100
+    world[60:140, 220:222] = 100
+    room = np.full(world.shape, -1, np.int8)
+    room[60:101, 20:220] = world[60:101, 20:220]       # sees the lower face only
+    corridor = np.full(world.shape, -1, np.int8)
+    corridor[105:140, 20:220] = world[105:140, 20:220]  # sees the upper face only
+    s = EstimationSettings()
+    pa, pb = (prepare(Grid(d, 0.05), 0.05, 'akaze') for d in (room, corridor))
+    # working pixels of the room onto the corridor's, the room's face (row 100) onto the corridor's (row 105)
+    faces_on_faces = tf.inverse(pb.px_to_map) @ tf.translation(0.0, 5 * 0.05) @ pa.px_to_map
+    assert opposite_sides(pa, pb, faces_on_faces, s) > 0.9
+    assert opposite_sides(pa, pa, np.eye(3), s) == 0.0
+
+
+def test_pair_confidence_counts_verified_correspondences():
+    from multirobot_map_merge.matching import pair_confidence
+    assert pair_confidence(0, 100) == 0.0
+    assert pair_confidence(300, 300) == pytest.approx(300 / 98.0)
+    # a pair passing the acceptance rules (>= 100 agreeing walls, >= 90 % agreement) passes the default 1.0
+    assert pair_confidence(100, 111) > 1.0
