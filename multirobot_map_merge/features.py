@@ -35,6 +35,8 @@ class PreparedGrid:
     wall_distance: np.ndarray   # float32 distance (pixels) of every pixel to the nearest occupied pixel
     nearest_wall: np.ndarray    # (H, W) index into `walls` of the nearest occupied pixel (-1 if none)
     resolution: float           # working resolution (m/pixel)
+    free_side: np.ndarray = None  # (H, W, 2) float32 direction towards nearby free space (see free_side_field)
+    wall_normals: np.ndarray = None  # (M, 2) free_side at each wall pixel
 
     @property
     def known_pixels(self) -> int:
@@ -83,6 +85,16 @@ def resample(data: np.ndarray, scale: float) -> np.ndarray:
     return out
 
 
+def free_side_field(work: np.ndarray) -> np.ndarray:
+    """(H, W, 2) direction (unnormalised, x then y) from each pixel towards the free space next to it.
+
+    A robot maps only the face of a wall it sees, so a wall pixel's free side tells from where it was seen; near
+    zero for a wall with free space on both sides.
+    """
+    free = cv2.GaussianBlur((work == 0).astype(np.float32), (0, 0), 2.0)
+    return np.dstack([cv2.Sobel(free, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(free, cv2.CV_32F, 0, 1, ksize=3)])
+
+
 def feature_image(work: np.ndarray) -> np.ndarray:
     """8-bit image for the detector: free white, unknown grey, occupied black (probabilities shaded)."""
     img = np.full(work.shape, 128, np.uint8)
@@ -129,7 +141,9 @@ def prepare(grid: Grid, work_resolution: float, feature: str) -> Optional[Prepar
     else:
         dist = np.full(work.shape, np.inf, np.float32)
         nearest = np.full(work.shape, -1, np.int64)
-    return PreparedGrid(work, px_to_map, pts, descriptors, walls, dist, nearest, work_resolution)
+    side = free_side_field(work)
+    return PreparedGrid(work, px_to_map, pts, descriptors, walls, dist, nearest, work_resolution, side,
+                        side[wall_rows, wall_cols].astype(np.float64))
 
 
 def content_key(grid: Grid) -> str:

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from . import transforms as tf
-from .features import PreparedGrid
+from .features import PreparedGrid, free_side_field
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
@@ -126,9 +126,10 @@ def hypotheses(p: np.ndarray, q: np.ndarray, s: EstimationSettings, rng: np.rand
 def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSettings,
         rng: np.random.Generator) -> np.ndarray:
     """Refine a pixel transform i -> j by point-to-point ICP of i's walls onto j's nearest walls."""
-    src = pi.walls
+    src, src_side = pi.walls, pi.wall_normals
     if len(src) > s.icp_max_points:
-        src = src[rng.choice(len(src), s.icp_max_points, replace=False)]
+        pick = rng.choice(len(src), s.icp_max_points, replace=False)
+        src, src_side = src[pick], src_side[pick]
     model = start.copy()
     if len(src) < 10 or len(pj.walls) < 10:
         return model
@@ -138,6 +139,11 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
             moved = tf.apply(model, src)
             nn, dist = pj.nearest(moved)
             close = dist < radius
+            if s.facing and close.any():
+                # a wall's two faces are not the same wall: pair only walls seen from the same side
+                turned = src_side[close] @ model[:2, :2].T
+                far_side = pj.free_side[nn[close, 1].astype(np.int64), nn[close, 0].astype(np.int64)]
+                close[np.flatnonzero(close)[opposed(turned, far_side)]] = False
             if close.sum() < 10:
                 return model
             step = tf.kabsch(moved[close], nn[close])
@@ -166,31 +172,55 @@ def quick_agreement(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: Es
     return float((pj.wall_distance[y[on_known], x[on_known]] <= s.screen_tolerance).mean())
 
 
+def opposed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Where two free-side directions point against each other: the walls there were seen from opposite sides."""
+    dot = (a * b).sum(axis=-1)
+    return dot < -0.3 * np.sqrt((a * a).sum(axis=-1) * (b * b).sum(axis=-1)) - 1e-6
+
+
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
-    """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j."""
+    """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j.
+
+    Only walls in the common known area count. A wall near a wall of the other map supports the placement, unless
+    the two were seen from opposite sides (a wall's two faces: neither support nor conflict); any other wall there
+    contradicts it.
+    """
     h, w = pj.work.shape
     warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
                             borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
     both = (warped >= 0) & (pj.work >= 0)
-    walls_i = both & (warped >= 50)
-    walls_j = both & (pj.work >= 50)
+    rows, cols = np.nonzero(both)
+    result = Placement(model, overlap_m2=float(rows.size) * pi.resolution ** 2)
+    if rows.size == 0:
+        return result
+    # everything else only where both maps are known (plus a margin for the distance and side fields)
+    r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
+    c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
+    wi, wj, both = warped[r0:r1, c0:c1], pj.work[r0:r1, c0:c1], both[r0:r1, c0:c1]
+    walls_i = both & (wi >= 50)
+    walls_j = both & (wj >= 50)
     n_i, n_j = int(walls_i.sum()), int(walls_j.sum())
-    result = Placement(model, overlap_m2=float(both.sum()) * pi.resolution ** 2)
     if n_i + n_j == 0:
         return result
-    dist_i = cv2.distanceTransform(np.where(warped >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    dist_i = cv2.distanceTransform(np.where(wi >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
     tol = s.verify_tolerance
-    support = int((walls_i & (pj.wall_distance <= tol)).sum()) + int((walls_j & (dist_i <= tol)).sum())
+    near_j = pj.wall_distance[r0:r1, c0:c1] <= tol
+    near_i = dist_i <= tol
+    agree_i, agree_j = walls_i & near_j, walls_j & near_i
+    support = int(agree_i.sum()) + int(agree_j.sum())
+    neutral = 0
+    if s.facing and support:
+        # only at the agreeing walls: the side fields are costly over the whole area
+        rows, cols = np.nonzero(agree_i | agree_j)
+        weight = agree_i[rows, cols].astype(np.int64) + agree_j[rows, cols]
+        side_i = free_side_field(wi)[rows, cols]
+        faces = opposed(side_i, pj.free_side[rows + r0, cols + c0])
+        neutral = int(weight[faces].sum())
+        support -= neutral
     result.support = support
-    result.conflicts = n_i + n_j - support
-    result.agreement = support / float(n_i + n_j)
+    result.conflicts = n_i + n_j - support - (neutral if s.faces_neutral else 0)
+    result.agreement = support / float(max(support + result.conflicts, 1))
     return result
-
-
-def _free_side(work: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Per pixel, the direction (unnormalised) towards the free space next to it."""
-    free = cv2.GaussianBlur((work == 0).astype(np.float32), (0, 0), 2.0)
-    return cv2.Sobel(free, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(free, cv2.CV_32F, 0, 1, ksize=3)
 
 
 def opposite_sides(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> float:
@@ -210,11 +240,12 @@ def opposite_sides(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: Est
         return 0.0
     r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
     c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
-    gxi, gyi = _free_side(warped[r0:r1, c0:c1])
-    gxj, gyj = _free_side(pj.work[r0:r1, c0:c1])
+    side_i = free_side_field(warped[r0:r1, c0:c1])
+    side_j = pj.free_side[r0:r1, c0:c1]
     rr, cc = rows - r0, cols - c0
     # the wall pixel of i may sit a pixel or two beside j's: take i's direction over a small neighbourhood
-    gxi, gyi = cv2.blur(gxi, (5, 5)), cv2.blur(gyi, (5, 5))
+    side_i = cv2.blur(side_i, (5, 5))
+    gxi, gyi, gxj, gyj = side_i[..., 0], side_i[..., 1], side_j[..., 0], side_j[..., 1]
     dot = gxi[rr, cc] * gxj[rr, cc] + gyi[rr, cc] * gyj[rr, cc]
     mag = np.hypot(gxi[rr, cc], gyi[rr, cc]) * np.hypot(gxj[rr, cc], gyj[rr, cc])
     sided = mag > 1e-3

@@ -24,11 +24,13 @@ class EstimationSettings:
     icp_iterations: int = 6           # at most, per level
     icp_max_points: int = 2000
     verify_tolerance: float = 2.0     # pixels: a wall "agrees" when the other map has a wall this close
-    min_agreement: float = 0.9        # share of walls in the common area that agree
+    min_agreement: float = 0.91       # share of walls in the common area that agree (support > 10 x conflicts)
     min_overlap_m2: float = 4.0       # common known area a pair needs
     min_support: int = 100            # agreeing wall pixels a pair needs
     conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
     ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
+    facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP
+    faces_neutral: bool = True
     max_opposite_share: float = 0.5   # agreeing walls seen from opposite sides (placement unsure by a wall's width)
     distinct_degrees: float = 5.0     # placements further apart than this are distinct
     distinct_metres: float = 1.0
