@@ -53,9 +53,13 @@ class LogOddsMap:
 
     def __init__(self, resolution: float = 0.05, l_hit: float = 2.0, l_miss: float = -1.5,
                  l_min: float = -5.0, l_max: float = 5.0, occupied_thresh: float = 0.65,
-                 free_thresh: float = 0.196, chunk_m: float = 4.0) -> None:
+                 free_thresh: float = 0.196, chunk_m: float = 4.0, line_sampling: bool = False) -> None:
+        """line_sampling: mark the free cells of a beam as a Bresenham line does (one cell per step along the
+        beam's major axis, ~2.5x fewer samples) instead of sampling every half cell (which also catches cells the
+        beam only clips)."""
         if resolution <= 0:
             raise ValueError("resolution must be positive")
+        self.line_sampling = bool(line_sampling)
         self.resolution = float(resolution)
         self.l_hit, self.l_miss, self.l_min, self.l_max = l_hit, l_miss, l_min, l_max
         self._occ_l, self._free_l = _logit(occupied_thresh), _logit(free_thresh)
@@ -113,48 +117,62 @@ class LogOddsMap:
         ca, sa = np.cos(a), np.sin(a)
         lengths = free_len[beams]
 
-        # free samples every half cell along each beam, all beams at once (ragged -> flat with repeat/cumsum)
-        step = 0.5 * res
-        counts = np.ceil(lengths / step).astype(np.int64)
+        # free samples along each beam, all beams at once (ragged -> flat with repeat/cumsum): every half cell, or
+        # with line_sampling one per cell of the beam's major axis; in cell units
+        step = 1.0 / np.maximum(np.abs(ca), np.abs(sa)) if self.line_sampling else np.full(beams.size, 0.5)
+        counts = np.ceil(lengths / res / step).astype(np.int64)
         total = int(counts.sum())
-        beam_of = np.repeat(np.arange(beams.size), counts)
-        first = np.repeat(np.cumsum(counts) - counts, counts)
-        dist = (np.arange(total) - first) * step
-        fx = np.floor((x + dist * ca[beam_of]) / res).astype(np.int64)
-        fy = np.floor((y + dist * sa[beam_of]) / res).astype(np.int64)
+        k = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)     # sample index within its beam
+        px, py = x / res, y / res
+        fx = np.floor(px + k * np.repeat(step * ca, counts)).astype(np.int64)
+        fy = np.floor(py + k * np.repeat(step * sa, counts)).astype(np.int64)
         is_hit = hit[beams]
-        hx = np.floor((x + lengths[is_hit] * ca[is_hit]) / res).astype(np.int64)
-        hy = np.floor((y + lengths[is_hit] * sa[is_hit]) / res).astype(np.int64)
+        hx = np.floor(px + lengths[is_hit] / res * ca[is_hit]).astype(np.int64)
+        hy = np.floor(py + lengths[is_hit] / res * sa[is_hit]).astype(np.int64)
         # the robot's own cell too, so growth always covers the pose
-        rc, rr = math.floor(x / res), math.floor(y / res)
-        allx = np.concatenate([fx, hx, [rc]])
-        ally = np.concatenate([fy, hy, [rr]])
-        self._ensure(int(allx.min()), int(ally.min()), int(allx.max()), int(ally.max()))
+        rc, rr = math.floor(px), math.floor(py)
+        bounds = [rc, rr, rc, rr]
+        for cx, cy in ((fx, fy), (hx, hy)):
+            if cx.size:
+                bounds = [min(bounds[0], int(cx.min())), min(bounds[1], int(cy.min())),
+                          max(bounds[2], int(cx.max())), max(bounds[3], int(cy.max()))]
+        self._ensure(*bounds)
 
-        w = self._L.shape[1]
-        free_idx = np.unique((fy - self._r0) * w + (fx - self._c0))
-        hit_idx = np.unique((hy - self._r0) * w + (hx - self._c0))
-        free_idx = np.setdiff1d(free_idx, hit_idx, assume_unique=True)   # a cell hit in this scan is not cleared
-        flat = self._L.reshape(-1)
-        flat[free_idx] += self.l_miss
-        flat[hit_idx] += self.l_hit
-        touched = np.concatenate([free_idx, hit_idx])
-        flat[touched] = np.clip(flat[touched], self.l_min, self.l_max)
-        if touched.size:
-            rows, cols = np.divmod(touched, w)
-            box = [int(cols.min()) + self._c0, int(rows.min()) + self._r0,
-                   int(cols.max()) + self._c0, int(rows.max()) + self._r0]
+        if fx.size + hx.size:
+            # one dense log-odds change over the scan's bounding box (cheaper than sorting cells for unique)
+            c_lo, r_lo, c_hi, r_hi = bounds
+            h, w = r_hi - r_lo + 1, c_hi - c_lo + 1
+            delta = np.zeros(h * w, np.float32)
+            delta[(fy - r_lo) * w + (fx - c_lo)] = self.l_miss
+            delta[(hy - r_lo) * w + (hx - c_lo)] = self.l_hit    # after the free cells: a hit cell is not cleared
+            win = self._L[r_lo - self._r0:r_hi - self._r0 + 1, c_lo - self._c0:c_hi - self._c0 + 1]
+            win += delta.reshape(h, w)
+            np.maximum(win, self.l_min, out=win)                  # untouched cells are within the bounds already
+            np.minimum(win, self.l_max, out=win)
+            # the changed cells' box (the robot's own cell may be untouched, e.g. all beams dropped)
+            tx, ty = np.concatenate([fx, hx]), np.concatenate([fy, hy])
+            box = [int(tx.min()), int(ty.min()), int(tx.max()), int(ty.max())]
             d = self._dirty
             self._dirty = box if d is None else [min(d[0], box[0]), min(d[1], box[1]),
                                                  max(d[2], box[2]), max(d[3], box[3])]
         self.n_scans += 1
 
     # ------------------------------------------------------------------------------------------- output
-    def values(self) -> np.ndarray:
-        """int8 (H, W): 100 where P(occupied) > occupied_thresh, 0 where < free_thresh, else -1."""
-        out = np.full(self._L.shape, -1, np.int8)
-        out[self._L > self._occ_l] = 100
-        out[self._L < self._free_l] = 0
+    def values(self, rect: Optional[ChangedRect] = None) -> np.ndarray:
+        """int8 (H, W): 100 where P(occupied) > occupied_thresh, 0 where < free_thresh, else -1; only the cells of
+        ``rect`` if given."""
+        L = self._L if rect is None else self._L[rect.y:rect.y + rect.height, rect.x:rect.x + rect.width]
+        out = np.full(L.shape, -1, np.int8)
+        out[L > self._occ_l] = 100
+        out[L < self._free_l] = 0
+        return out
+
+    def occupied_cells(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Per grid cell (cols, rows; outside the grid: False) whether it is occupied (100 in values())."""
+        h, w = self._L.shape
+        inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
+        out = np.zeros(np.shape(cols), bool)
+        out[inside] = self._L[rows[inside], cols[inside]] > self._occ_l
         return out
 
     def to_grid(self, frame_id: str = 'map', stamp: float = 0.0) -> Grid:
