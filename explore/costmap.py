@@ -42,7 +42,7 @@ class InvalidUpdateError(CostmapError):
 
 
 def translation_table(probability_map: bool = False, free_threshold: int = 25,
-                      occupied_threshold: int = 65) -> np.ndarray:
+                      occupied_threshold: int = 65, by_threshold: bool = False) -> np.ndarray:
     """The 256-entry occupancy (reinterpreted as uint8) → cost table.
 
     Default: the original's table — 0 → 0, 1..98 → 1 + floor(251·(i−1)/97), 99 → 253, 100 → 254, 255 (−1) → 255 and
@@ -52,6 +52,12 @@ def translation_table(probability_map: bool = False, free_threshold: int = 25,
     values strictly between → NO_INFORMATION (uncertain cells are treated as not yet explored, like map_server's
     trinary mode), so maps whose free cells are not exactly 0 (Cartographer) still have frontiers. A ternary map
     (−1/0/100) translates to the same costs either way. Invalid values keep the original's entries.
+
+    ``by_threshold`` (the explore node's default; ignored with ``probability_map``): occupancies 0..free_threshold →
+    FREE_SPACE and occupied_threshold..100 → LETHAL_OBSTACLE, the values in between keep the original's ramp (neither
+    free nor unknown). Only exact FREE_SPACE and NO_INFORMATION matter to the frontier search, so this finds the
+    frontiers of probabilistic maps without turning a costmap's inflation band into unknown space; a ternary map
+    translates as the original, and free_threshold 0 gives the original's frontiers for any map.
     """
     i = np.arange(256, dtype=np.int64)
     table = ((1 + (251 * (i - 1)) // 97) % 256).astype(np.uint8)
@@ -59,11 +65,12 @@ def translation_table(probability_map: bool = False, free_threshold: int = 25,
     table[99] = INSCRIBED_INFLATED_OBSTACLE
     table[100] = LETHAL_OBSTACLE
     table[255] = NO_INFORMATION
-    if probability_map:
+    if probability_map or by_threshold:
         if not 0 <= free_threshold < occupied_threshold <= 100:
             raise ValueError(f"need 0 <= free_threshold ({free_threshold}) < occupied_threshold "
                              f"({occupied_threshold}) <= 100")
-        table[:101] = NO_INFORMATION
+        if probability_map:
+            table[:101] = NO_INFORMATION
         table[:free_threshold + 1] = FREE_SPACE
         table[occupied_threshold:101] = LETHAL_OBSTACLE
     return table
@@ -95,8 +102,9 @@ def translate(data: CellData, table: Optional[np.ndarray] = None) -> np.ndarray:
 class Costmap:
     """The explorer's grid plus its geometry; thread-safe through ``lock`` (held by updates and by the search)."""
 
-    def __init__(self, probability_map: bool = False, free_threshold: int = 25, occupied_threshold: int = 65) -> None:
-        self.table = translation_table(probability_map, free_threshold, occupied_threshold)
+    def __init__(self, probability_map: bool = False, free_threshold: int = 25, occupied_threshold: int = 65,
+                 by_threshold: bool = False) -> None:
+        self.table = translation_table(probability_map, free_threshold, occupied_threshold, by_threshold)
         self.lock = threading.RLock()
         self.data = np.zeros((0, 0), dtype=np.uint8)
         self.resolution = 0.0

@@ -99,6 +99,12 @@ class GoalLogic:
         with self._lock:
             self._resuming = True
 
+    def forget_goal(self) -> None:
+        """The current goal was cancelled (pause or stop): the next plan sends its goal even if it is the same one,
+        instead of keeping a goal nobody pursues any more."""
+        with self._lock:
+            self._prev_goal = None
+
     @property
     def returning_home(self) -> bool:
         """True after a STOP carried ``return_target``, until a new exploration goal is sent."""
@@ -130,8 +136,12 @@ class GoalLogic:
                     return self._stop('all_blacklisted', blacklisted)
                 target = frontier.centroid
                 same_goal = self._prev_goal is not None and same_point(self._prev_goal, target)
+                # Progress is judged per goal area (the blacklist square), not per exact point: map noise moves a
+                # frontier's centroid by more than 1 cm from plan to plan, and the original then restarts the
+                # timeout every time and may retry an unreachable frontier forever.
+                same_area = self._prev_goal is not None and on_blacklist(target, [self._prev_goal], resolution)
                 self._prev_goal = target
-                if not same_goal or self._prev_distance > frontier.min_distance:
+                if not same_area or self._prev_distance > frontier.min_distance:
                     # a different goal, or we got closer to this one
                     self._last_progress = now
                     self._prev_distance = frontier.min_distance

@@ -50,14 +50,18 @@ class ExploreParams:
     team_frame: str = _p('world', "Frame in which goals are exchanged on `team_topic`.", extension=True)
     team_radius: float = _p(3.0, "Frontiers whose centroid is closer than this to another robot's goal are "
                             "chosen only when no other frontier is left.", 'm', extension=True)
-    probability_map: bool = _p(False, "Treat the map as probabilistic (e.g. Cartographer): occupancy ≤ "
-                               "`free_threshold` is free, ≥ `occupied_threshold` is occupied, values in between "
-                               "are unknown. Off: the original's translation (only exactly 0 is free). A ternary "
-                               "map (−1/0/100) gives the same result either way.", extension=True)
-    free_threshold: int = _p(25, "With `probability_map`: highest occupancy (0..100) counted as free.",
-                             extension=True)
-    occupied_threshold: int = _p(65, "With `probability_map`: lowest occupancy (0..100) counted as occupied.",
-                                 extension=True)
+    team_map_topic: str = _p('', "Merged map of the team (`nav_msgs/OccupancyGrid` in `team_frame`, e.g. "
+                             "map_merge's map with its `publish_tf`): frontiers whose far side this map already "
+                             "shows as known (a teammate has mapped it) are skipped. Empty: off.", extension=True)
+    probability_map: bool = _p(False, "Treat occupancies strictly between `free_threshold` and "
+                               "`occupied_threshold` as unknown (uncertain cells count as unexplored, e.g. "
+                               "Cartographer maps). Off: they are neither free nor unknown, as the original's "
+                               "values 1..98. Do not use with a costmap source: its inflation band would become "
+                               "frontiers.", extension=True)
+    free_threshold: int = _p(25, "Highest occupancy (0..100) counted as free. The original counts only exactly 0 "
+                             "as free, so probabilistic maps had no frontiers; 0 restores that. A ternary map "
+                             "(−1/0/100) gives the same result for any value.", extension=True)
+    occupied_threshold: int = _p(65, "Lowest occupancy (0..100) counted as occupied (lethal).", extension=True)
 
     def validate(self) -> None:
         """Raise ParamError for values the node cannot run with."""

@@ -1,14 +1,94 @@
 #!/usr/bin/env bash
-# make demo: merge the package's own sample maps (three robots, unknown initial poses) and report the placement
-# error against the samples' ground truth. Output in out/demo/. Run through scripts/env.sh (make demo does).
+# make demo [DEMO_ARGS="--robots N --world MAP.yaml --world-seed S --seed S --speedup X ..."]
+#
+# Live demo (default): the fleet simulator runs N robots (default 3) at random starts in a generated building (or any
+# map_server YAML), one explorer per robot explores it, map_merge merges the robot maps without known initial poses.
+# Headless, sim time at --speedup x real time; prints a progress line; ends when exploration is finished or at a
+# limit; writes out/demo/merged.{yaml,pgm,png} and out/demo/summary.{txt,json} (explored share, times, placement
+# error of the merge against the simulator's ground truth). Full roslaunch output: out/demo/roslaunch.log.
+#
+# Options (also as --opt=value):
+#   --robots N          robots, 1..6 (default 3)
+#   --world FILE.yaml   world map (map_server YAML; occupied and unknown cells are walls); default: generated
+#   --world-seed S      floor plan of the generated world (default 0)
+#   --seed S            start poses and laser noise (default 0)
+#   --speedup X         sim time / real time (default 5)
+#   --no-coordination   explorers ignore each other (plain explore_lite behaviour)
+#   --limit-sim S       give up after S s of sim time (default 1200)
+#   --limit-wall S      give up after S s of real time (default 240)
+#   --out DIR           output directory (default out/demo)
+#   --offline [NAME]    instead: merge the sample maps data/samples/NAME (default three_robots) offline and report
+#                       their placement error (no ROS master)
+# Run through scripts/env.sh (make demo does).
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-scenario="${1:-three_robots}"
-[ -n "$scenario" ] || scenario=three_robots
-src="$repo/data/samples/$scenario"
-out="$repo/out/demo"
-[ -f "$src/truth.json" ] || { echo "demo: no sample scenario '$scenario' in data/samples" >&2; exit 2; }
+
+# The Makefile passes DEMO_ARGS as one word: split it.
+# shellcheck disable=SC2048,SC2086
+set -- $*
+
+robots=3 world="" world_seed=0 seed=0 speedup=5 coordinate=true limit_sim=1200 limit_wall=240
+out="$repo/out/demo" offline="" scenario=three_robots
+usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+need() { [ $# -ge 2 ] && [ -n "$2" ] || { echo "demo: $1 needs a value" >&2; exit 2; }; }
+while [ $# -gt 0 ]; do
+  opt=$1 val=""
+  case $opt in --*=*) val=${opt#*=}; opt=${opt%%=*}; set -- "$opt" "$val" "${@:2}";; esac
+  case $opt in
+    --robots) need "$@"; robots=$2; shift;;
+    --world) need "$@"; world=$2; shift;;
+    --world-seed) need "$@"; world_seed=$2; shift;;
+    --seed) need "$@"; seed=$2; shift;;
+    --speedup) need "$@"; speedup=$2; shift;;
+    --no-coordination) coordinate=false;;
+    --limit-sim) need "$@"; limit_sim=$2; shift;;
+    --limit-wall) need "$@"; limit_wall=$2; shift;;
+    --out) need "$@"; out=$2; shift;;
+    --offline) offline=1; if [ $# -ge 2 ] && [[ $2 != --* ]]; then scenario=$2; shift; fi;;
+    -h|--help) usage; exit 0;;
+    *) echo "demo: unknown option '$1' (see --help)" >&2; exit 2;;
+  esac
+  shift
+done
+is_int() { [[ $1 =~ ^[0-9]+$ ]]; }
+is_num() { [[ $1 =~ ^[0-9]+([.][0-9]*)?$ ]]; }
+is_int "$robots" && [ "$robots" -ge 1 ] && [ "$robots" -le 6 ] || { echo "demo: --robots must be 1..6" >&2; exit 2; }
+is_int "$world_seed" && is_int "$seed" || { echo "demo: seeds must be non-negative integers" >&2; exit 2; }
+is_num "$speedup" && is_num "$limit_sim" && is_num "$limit_wall" \
+  || { echo "demo: --speedup and the limits must be positive numbers" >&2; exit 2; }
 mkdir -p "$out"
-python "$repo/nodes/merge_maps" --output "$out/merged" --transforms-json "$out/transforms.json" "$src"/map_*.yaml
-python "$repo/scripts/placement_report.py" "$src/truth.json" "$out/transforms.json"
-echo "demo: merged map in $out/merged.yaml (+ .pgm), preview $out/merged.png"
+out="$(cd "$out" && pwd)"
+
+if [ -n "$offline" ]; then
+  src="$repo/data/samples/$scenario"
+  [ -f "$src/truth.json" ] || { echo "demo: no sample scenario '$scenario' in data/samples" >&2; exit 2; }
+  python "$repo/nodes/merge_maps" --output "$out/merged" --transforms-json "$out/transforms.json" "$src"/map_*.yaml
+  python "$repo/scripts/placement_report.py" "$src/truth.json" "$out/transforms.json"
+  echo "demo: merged map in $out/merged.yaml (+ .pgm), preview $out/merged.png"
+  exit 0
+fi
+
+if [ -n "$world" ]; then
+  [ -f "$world" ] || { echo "demo: world file '$world' not found" >&2; exit 2; }
+  world="$(cd "$(dirname "$world")" && pwd)/$(basename "$world")"
+fi
+# A master of our own on a free port: never disturb (or join) another ROS system on this machine.
+port=$(python -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+export ROS_MASTER_URI="http://127.0.0.1:$port"
+export ROS_HOSTNAME=127.0.0.1
+rm -f "$out/summary.txt" "$out/summary.json"
+echo "demo: $robots robots, world ${world:-generated (seed $world_seed)}, seed $seed, speed-up $speedup," \
+     "coordination $coordinate; log in $out/roslaunch.log"
+set +e
+# Hard stop a little after the supervisor's own real-time limit, whatever happens.
+timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall') + 40))")" \
+  roslaunch -p "$port" multirobot_map_merge demo.launch num_robots:="$robots" world:="$world" \
+    world_seed:="$world_seed" seed:="$seed" speedup:="$speedup" coordinate:="$coordinate" out:="$out" \
+    limit_sim:="$limit_sim" limit_wall:="$limit_wall" 2>&1 \
+  | tee "$out/roslaunch.log" | grep --line-buffered -E '^\[demo\]|^demo:|has died|FATAL|ERROR|Traceback' \
+  | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'
+set -e
+if [ ! -f "$out/summary.txt" ]; then
+  echo "demo: the demo ended without a summary; see $out/roslaunch.log and the node logs in \$ROS_LOG_DIR" >&2
+  exit 1
+fi

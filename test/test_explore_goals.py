@@ -224,3 +224,31 @@ def test_every_param_is_documented():
                                            'progress_timeout', 'potential_scale', 'orientation_scale',
                                            'gain_scale', 'min_frontier_size']
     assert all(d.doc for d in docs) and not any(d.extension for d in docs[:11]) and all(d.extension for d in docs[11:])
+
+
+def test_forget_goal_resends_the_same_goal():
+    """After a pause or stop cancelled the goal, the same frontier must be sent again, not kept."""
+    logic = GoalLogic(progress_timeout=30.0)
+    fa = frontier(1.0, 1.0, -3.0)
+    assert logic.plan([fa], RES, now=1.0).action is PlanAction.SEND_GOAL
+    assert logic.plan([fa], RES, now=2.0).action is PlanAction.KEEP_GOAL
+    logic.forget_goal()
+    assert logic.plan([fa], RES, now=3.0).action is PlanAction.SEND_GOAL
+
+
+def test_centroid_jitter_does_not_restart_the_timeout():
+    """Map noise moving the frontier's centroid by a few cm each plan must not keep an unreachable goal alive
+    forever (the original restarts the timeout for every goal more than 1 cm away from the last one)."""
+    logic = GoalLogic(progress_timeout=30.0)
+    other = frontier(8.0, 8.0, -1.0)
+    t = 0.0
+    first = logic.plan([frontier(2.0, 2.0, -5.0, min_distance=3.0), other], RES, t)
+    assert first.action is PlanAction.SEND_GOAL
+    for k in range(1, 20):
+        t += 2.0
+        jittered = frontier(2.0 + 0.05 * (k % 3), 2.0 - 0.04 * (k % 2), -5.0, min_distance=3.0)
+        res = logic.plan([jittered, other], RES, t)
+        if res.frontier is other:
+            break
+        assert res.action is PlanAction.SEND_GOAL   # a new point: re-sent, but the timeout keeps running
+    assert res.frontier is other and 30.0 < t <= 32.0 and len(res.blacklisted) == 1

@@ -1,0 +1,113 @@
+"""Ground-truth evaluation for tests, the demo and the bench (no ROS): how much of a known world the robots have
+explored, and how well a map merge placed their maps.
+
+The *reachable area* is the free space of the ground-truth world 4-connected to the robots' start cells. A
+reachable world cell counts as *explored* when its centre falls on a known cell (not −1) of at least one robot map,
+placed in the world by that map's true pose.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.grid import Grid
+
+Pose = Tuple[float, float, float]   # x, y, yaw of a map frame in the world frame
+
+
+def _world_cell(world: Grid, x: float, y: float) -> Optional[Tuple[int, int]]:
+    inv = np.linalg.inv(world.cell_to_map())
+    c, r, _ = inv @ np.array([x, y, 1.0])
+    c, r = int(np.floor(c)), int(np.floor(r))
+    if 0 <= c < world.width and 0 <= r < world.height:
+        return c, r
+    return None
+
+
+def reachable_mask(world: Grid, starts: Iterable[Tuple[float, float]]) -> np.ndarray:
+    """Free cells (0 ≤ value < 50) 4-connected to the cell of any start point (world metres)."""
+    free = ((world.data >= 0) & (world.data < 50)).astype(np.uint8)
+    _, labels = cv2.connectedComponents(free, connectivity=4, ltype=cv2.CV_32S)
+    keep = set()
+    for x, y in starts:
+        cell = _world_cell(world, x, y)
+        if cell is not None and free[cell[1], cell[0]]:
+            keep.add(int(labels[cell[1], cell[0]]))
+    if not keep:
+        return np.zeros(world.data.shape, bool)
+    return np.isin(labels, sorted(keep))
+
+
+def explored_mask(world: Grid, reachable: np.ndarray, maps: Sequence[Tuple[Grid, Pose]]) -> np.ndarray:
+    """Reachable world cells that are known in at least one of ``maps`` (each a grid with its frame's world pose)."""
+    rows, cols = np.nonzero(reachable)
+    pts = world.cell_to_map() @ np.vstack([cols + 0.5, rows + 0.5, np.ones(cols.size)])
+    seen = np.zeros(cols.size, bool)
+    for grid, (x, y, yaw) in maps:
+        if grid is None or grid.is_empty():
+            continue
+        c, s = np.cos(yaw), np.sin(yaw)
+        world_from_map = np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+        cell = np.linalg.inv(world_from_map @ grid.cell_to_map()) @ pts
+        mc, mr = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
+        ok = (mc >= 0) & (mc < grid.width) & (mr >= 0) & (mr < grid.height)
+        known = np.zeros(cols.size, bool)
+        known[ok] = grid.data[mr[ok], mc[ok]] >= 0
+        seen |= known
+    out = np.zeros(reachable.shape, bool)
+    out[rows, cols] = seen
+    return out
+
+
+def explored_share(world: Grid, reachable: np.ndarray, maps: Sequence[Tuple[Grid, Pose]]) -> float:
+    """Fraction (0..1) of the reachable area explored by ``maps``; 0 when nothing is reachable."""
+    total = int(reachable.sum())
+    if total == 0:
+        return 0.0
+    return float(explored_mask(world, reachable, maps).sum()) / total
+
+
+def known_corners(grid: Grid) -> np.ndarray:
+    """(4, 2) corners, in the grid's frame, of the bounding box of its known cells ((1, 2) zeros if none)."""
+    rows, cols = np.nonzero(grid.known_mask())
+    if rows.size == 0:
+        return np.zeros((1, 2))
+    c = np.array([[cols.min(), rows.min()], [cols.max() + 1, rows.min()], [cols.min(), rows.max() + 1],
+                  [cols.max() + 1, rows.max() + 1]], float)
+    return tf.apply(grid.cell_to_map(), c)
+
+
+def placement_errors(estimated: Mapping[str, Pose], truth: Mapping[str, Pose],
+                     maps: Mapping[str, Grid]) -> List[Dict[str, object]]:
+    """Errors of estimated map-frame poses (name -> pose in the merge's world) against the true ones (name -> pose
+    in the ground-truth world), relative to the first estimated robot (the merge's world is arbitrary): rotation in
+    degrees and the largest displacement, in metres, of the corners of the robot map's known area. One row per
+    robot of ``estimated`` that has a true pose, in that order."""
+    names = [n for n in estimated if n in truth]
+    if not names:
+        return []
+    ref = names[0]
+    ref_est, ref_true = tf.rigid(*estimated[ref]), tf.rigid(*truth[ref])
+    rows = []
+    for n in names:
+        rel_est = tf.inverse(ref_est) @ tf.rigid(*estimated[n])
+        rel_true = tf.inverse(ref_true) @ tf.rigid(*truth[n])
+        grid = maps.get(n)
+        corners = known_corners(grid) if grid is not None else np.zeros((1, 2))
+        rot, disp = tf.difference(rel_est, rel_true, corners)
+        rows.append({'robot': n, 'reference': ref, 'rotation_error_deg': math.degrees(rot), 'corner_error_m': disp})
+    return rows
+
+
+def truth_from_estimate(estimated: Mapping[str, Pose], truth: Mapping[str, Pose]) -> Optional[Pose]:
+    """Pose of the merge's world frame in the ground-truth world, through the first robot of ``estimated``."""
+    names = [n for n in estimated if n in truth]
+    if not names:
+        return None
+    m = tf.rigid(*truth[names[0]]) @ tf.inverse(tf.rigid(*estimated[names[0]]))
+    x, y, yaw, _ = tf.params(m)
+    return x, y, yaw

@@ -1,0 +1,148 @@
+"""Fleet coordination of explorers (an extension; explore_lite has none): teammates' goals and the team's map.
+
+Each explorer publishes its current goal in a shared frame (``team_frame``) and keeps the latest goal of every
+teammate here. Planning demotes frontiers near those goals (``goal_logic.apply_team_penalty``) and, with a merged
+map of the team, skips frontiers whose far side a teammate has already mapped (``drop_explored_by_team``).
+
+Who yields: when two robots head for the same area, the robot that chose its goal first keeps it. A teammate's goal
+within ``radius`` of this robot's own current goal is ignored if it was chosen later (ties: the larger name yields),
+so exactly one of the two moves on instead of both switching back and forth.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from multirobot_map_merge.grid import Grid
+
+from .costmap import FREE_SPACE, NO_INFORMATION
+from .frontier_search import Frontier
+
+Point2 = Tuple[float, float]
+
+# A teammate goal not refreshed for this long (ROS time, s) is dropped: its robot has died or lost the topic.
+# Explorers re-publish their goal at every planning cycle.
+STALE_AFTER = 60.0
+
+
+@dataclass(frozen=True)
+class TeamGoal:
+    sender: str        # node name of the publishing explorer
+    point: Point2      # goal in the team frame
+    chosen_at: float   # ROS time the goal was chosen (the message stamp), s
+    received_at: float  # ROS time of the latest message, s
+
+
+class TeamGoals:
+    """Latest goal per teammate; thread-safe (subscriber threads write, the planning thread reads)."""
+
+    def __init__(self, own_name: str, stale_after: float = STALE_AFTER) -> None:
+        self.own_name = own_name
+        self.stale_after = stale_after
+        self._lock = threading.Lock()
+        self._goals: Dict[str, TeamGoal] = {}
+
+    def update(self, sender: str, point: Optional[Point2], chosen_at: float, received_at: float) -> bool:
+        """Store a teammate's goal (``point`` None: the teammate has no goal any more). Own messages and
+        non-finite points are ignored; returns True if stored."""
+        if sender == self.own_name:
+            return False
+        with self._lock:
+            if point is None:
+                self._goals.pop(sender, None)
+                return True
+            if not (math.isfinite(point[0]) and math.isfinite(point[1]) and math.isfinite(chosen_at)):
+                return False
+            self._goals[sender] = TeamGoal(sender, (float(point[0]), float(point[1])), chosen_at, received_at)
+            return True
+
+    def active(self, now: float, own_goal: Optional[Point2] = None, own_chosen_at: float = math.inf,
+               radius: float = 0.0) -> List[TeamGoal]:
+        """Teammates' goals that count now: not stale, and not yielding to this robot's own goal (see module doc).
+
+        ``own_goal`` is in the team frame (None if this robot has no goal or it cannot be expressed there).
+        """
+        with self._lock:
+            for k in [k for k, g in self._goals.items() if now - g.received_at > self.stale_after]:
+                del self._goals[k]
+            goals = sorted(self._goals.values(), key=lambda g: g.sender)
+        if own_goal is None:
+            return goals
+        return [g for g in goals if not (_near(g.point, own_goal, radius) and
+                                         (g.chosen_at, g.sender) > (own_chosen_at, self.own_name))]
+
+    def senders(self) -> List[str]:
+        with self._lock:
+            return sorted(self._goals)
+
+
+def _near(a: Point2, b: Point2, radius: float) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) < radius
+
+
+# --- what the team has mapped ---------------------------------------------------------------------------------------
+# A frontier is skipped when most of the unknown space just beyond it is known in the team's merged map, i.e. a
+# teammate has already seen it. The samples lie BEYOND_CELLS cells outward from each frontier cell (away from its
+# free neighbour), so a merged map that places this robot's own map a cell off cannot make them look known.
+BEYOND_CELLS = 3
+KNOWN_BY_TEAM = 0.5
+
+KnownAt = Callable[[np.ndarray], np.ndarray]   # (N, 2) points in the robot's map frame -> (N,) bool known
+
+
+def beyond_points(points: np.ndarray, data: np.ndarray, resolution: float, origin: Point2) -> np.ndarray:
+    """For frontier cell centres ``points`` (world coordinates of the costmap ``data``), the points BEYOND_CELLS
+    cells outward (away from the first free 4-neighbour), kept only where the costmap itself is unknown there."""
+    if len(points) == 0:
+        return np.zeros((0, 2))
+    h, w = data.shape
+    c = np.floor((points[:, 0] - origin[0]) / resolution).astype(np.int64)
+    r = np.floor((points[:, 1] - origin[1]) / resolution).astype(np.int64)
+    step = np.zeros((len(points), 2), np.int64)
+    found = np.zeros(len(points), bool)
+    for dc, dr in ((-1, 0), (1, 0), (0, -1), (0, 1)):   # the original's nhood4 order
+        nc, nr = c + dc, r + dr
+        ok = ~found & (nc >= 0) & (nc < w) & (nr >= 0) & (nr < h)
+        free = np.zeros(len(points), bool)
+        free[ok] = data[nr[ok], nc[ok]] == FREE_SPACE
+        step[free] = (-dc, -dr)
+        found |= free
+    bc, br = c + BEYOND_CELLS * step[:, 0], r + BEYOND_CELLS * step[:, 1]
+    inside = found & (bc >= 0) & (bc < w) & (br >= 0) & (br < h)
+    keep = np.zeros(len(points), bool)
+    keep[inside] = data[br[inside], bc[inside]] == NO_INFORMATION
+    keep |= found & ~inside          # beyond the edge of the own map: unknown to this robot
+    return np.column_stack([origin[0] + (bc[keep] + 0.5) * resolution, origin[1] + (br[keep] + 0.5) * resolution])
+
+
+def known_by_team(frontier: Frontier, data: np.ndarray, resolution: float, origin: Point2,
+                  known_at: KnownAt) -> float:
+    """Fraction (0..1) of the samples beyond ``frontier`` that the team map knows (0 without samples)."""
+    pts = beyond_points(frontier.points, data, resolution, origin)
+    if len(pts) == 0:
+        return 0.0
+    return float(np.count_nonzero(known_at(pts))) / len(pts)
+
+
+def drop_explored_by_team(frontiers: Sequence[Frontier], data: np.ndarray, resolution: float, origin: Point2,
+                          known_at: KnownAt, max_known: float = KNOWN_BY_TEAM) -> List[Frontier]:
+    """The frontiers (order kept) whose space beyond is not already mapped by the team."""
+    return [f for f in frontiers if known_by_team(f, data, resolution, origin, known_at) < max_known]
+
+
+def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
+    """known_at() for a team map ``grid`` and the 3x3 transform from the robot's map frame into the grid's frame."""
+    to_cell = np.linalg.inv(grid.cell_to_map()) @ team_from_map
+
+    def known_at(pts: np.ndarray) -> np.ndarray:
+        cell = to_cell @ np.vstack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
+        c, r = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
+        ok = (c >= 0) & (c < grid.width) & (r >= 0) & (r < grid.height)
+        out = np.zeros(len(pts), bool)
+        out[ok] = grid.data[r[ok], c[ok]] >= 0
+        return out
+    return known_at

@@ -1,0 +1,239 @@
+#!/usr/bin/env python3
+"""demo_supervisor: watches the live demo (launch/demo.launch), prints its progress and writes the results.
+
+Progress line (every ~2 s): sim time, explored share of the reachable area (the robots' own maps placed at their
+true poses, against the simulator's ground truth), robots in the merged map, explorers still exploring.
+The demo ends when every explorer has logged "Exploration stopped." or at ~limit_sim (sim s) / ~limit_wall (real
+s). Then the newest merged map is written to ~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}:
+explored share, the share the merged map covers, times, and map_merge's placement error per robot against the
+ground truth (rotation, and the largest displacement of the robot map's known-area corners), relative to the first
+placed robot, as scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch
+(it is `required`).
+
+Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup (for the summary),
+~merged_topic, ~status_topic, ~world_topic (default /fleet_sim/world_map).
+"""
+import json
+import math
+import os
+import sys
+import threading
+import time
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+import rospy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid
+from rosgraph_msgs.msg import Log
+
+from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
+from multirobot_map_merge.grid import Grid, GridError
+from multirobot_map_merge.mapio import save_map, save_png
+from multirobot_map_merge.msg import MergeStatus
+from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
+
+Pose = Tuple[float, float, float]
+
+
+def _pose(msg: PoseStamped) -> Pose:
+    q = msg.pose.orientation
+    return msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+
+
+def _transform_pose(t) -> Pose:
+    q = t.rotation
+    return t.translation.x, t.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+
+
+class Supervisor:
+    def __init__(self) -> None:
+        n = int(rospy.get_param('~num_robots', 3))
+        self.names = [f'robot_{i + 1}' for i in range(n)]
+        self.out = os.path.abspath(os.path.expanduser(rospy.get_param('~out', 'demo_out')))
+        self.limit_sim = float(rospy.get_param('~limit_sim', 1200.0))
+        self.limit_wall = float(rospy.get_param('~limit_wall', 240.0))
+        self.speedup = float(rospy.get_param('~speedup', 1.0))
+        self.lock = threading.Lock()   # owns everything below, written by the callbacks
+        self.world: Optional[Grid] = None
+        self.starts: Dict[str, Pose] = {}
+        self.maps: Dict[str, Grid] = {}
+        self.status: Optional[MergeStatus] = None
+        self.merged: Optional[Grid] = None
+        self.merged_at = 0.0           # wall time the newest merged map arrived
+        self.stopped: set = set()
+        self.reach: Optional[np.ndarray] = None
+        rospy.Subscriber(rospy.get_param('~world_topic', '/fleet_sim/world_map'), OccupancyGrid, self.on_world,
+                         queue_size=1, buff_size=1 << 24)
+        for name in self.names:
+            rospy.Subscriber(f'/{name}/ground_truth/start_pose', PoseStamped, self.on_start, callback_args=name)
+            rospy.Subscriber(f'/{name}/map', OccupancyGrid, self.on_map, callback_args=name, queue_size=1,
+                             buff_size=1 << 24)
+        rospy.Subscriber(rospy.get_param('~status_topic', '/map_merge/map_merge/status'), MergeStatus,
+                         self.on_status, queue_size=1)
+        rospy.Subscriber(rospy.get_param('~merged_topic', '/map_merge/map'), OccupancyGrid, self.on_merged,
+                         queue_size=1, buff_size=1 << 25)
+        rospy.Subscriber('/rosout', Log, self.on_log, queue_size=500)
+
+    # ------------------------------------------------------------------ callbacks: convert + store
+    def _grid(self, msg: OccupancyGrid) -> Optional[Grid]:
+        try:
+            return grid_from_msg(msg)
+        except GridError as e:
+            rospy.logwarn_throttle(10.0, f'demo_supervisor: bad map refused: {e}')
+            return None
+
+    def on_world(self, msg):
+        grid = self._grid(msg)
+        with self.lock:
+            self.world, self.reach = grid, None
+
+    def on_start(self, msg, name):
+        with self.lock:
+            self.starts[name] = _pose(msg)
+            self.reach = None
+
+    def on_map(self, msg, name):
+        grid = self._grid(msg)
+        if grid is not None:
+            with self.lock:
+                self.maps[name] = grid
+
+    def on_status(self, msg):
+        with self.lock:
+            self.status = msg
+
+    def on_merged(self, msg):
+        grid = self._grid(msg)
+        if grid is not None:
+            with self.lock:
+                self.merged, self.merged_at = grid, time.monotonic()
+
+    def on_log(self, msg):
+        if msg.msg.startswith('Exploration stopped.'):
+            for name in self.names:
+                if msg.name == f'/{name}/explore':
+                    with self.lock:
+                        self.stopped.add(name)
+
+    # ------------------------------------------------------------------ figures
+    def explored(self) -> Optional[float]:
+        with self.lock:
+            world, starts, maps = self.world, dict(self.starts), dict(self.maps)
+            if world is None or len(starts) < len(self.names):
+                return None
+            if self.reach is None:
+                self.reach = reachable_mask(world, [p[:2] for p in starts.values()])
+            reach = self.reach
+        return explored_share(world, reach, [(maps[n], starts[n]) for n in self.names if n in maps])
+
+    def placements(self) -> Tuple[List[dict], Optional[Pose]]:
+        """Per robot: included, and the placement errors against the ground truth; plus the pose of map_merge's
+        world frame in the ground-truth world (None before any placement)."""
+        with self.lock:
+            status, starts, maps = self.status, dict(self.starts), dict(self.maps)
+        entries = {e.robot_namespace.strip('/'): e for e in (status.robots if status else [])}
+        estimated = {n: _transform_pose(entries[n].transform) for n in self.names
+                     if n in entries and entries[n].included}
+        errors = {r['robot']: r for r in placement_errors(estimated, starts, maps)}
+        rows = []
+        for n in self.names:
+            row = {'robot': n, 'included': n in estimated}
+            if n in errors:
+                row.update(errors[n])
+                res = maps[n].resolution if n in maps else 0.05
+                row['corner_error_cells'] = row['corner_error_m'] / res
+            rows.append(row)
+        return rows, truth_from_estimate(estimated, starts)
+
+    def merged_share(self, truth_from_merged: Optional[Pose]) -> Optional[float]:
+        with self.lock:
+            merged, world, reach = self.merged, self.world, self.reach
+        if merged is None or world is None or reach is None or truth_from_merged is None:
+            return None
+        return explored_share(world, reach, [(merged, truth_from_merged)])
+
+    # ------------------------------------------------------------------ main loop
+    def run(self) -> None:
+        wall0 = time.monotonic()
+        tty = sys.stdout.isatty()
+        last_print = -math.inf
+        reason = ''
+        while not rospy.is_shutdown():
+            time.sleep(0.5)
+            wall, sim = time.monotonic() - wall0, rospy.get_time()
+            with self.lock:
+                stopped = len(self.stopped)
+                included = sum(1 for e in (self.status.robots if self.status else []) if e.included)
+            if wall - last_print >= 2.0:
+                last_print = wall
+                share = self.explored()
+                line = (f"[demo] sim {sim:7.1f} s | explored {'  -  ' if share is None else f'{100 * share:5.1f}'} % "
+                        f"| merged {included}/{len(self.names)} robots | exploring {len(self.names) - stopped}/"
+                        f"{len(self.names)} | real {wall:5.1f} s")
+                print(('\r' + line) if tty else line, end='' if tty else '\n', flush=True)
+            if stopped == len(self.names):
+                reason = 'finished: every explorer has stopped'
+            elif sim >= self.limit_sim:
+                reason = f'limit: {self.limit_sim:.0f} s of sim time'
+            elif wall >= self.limit_wall:
+                reason = f'limit: {self.limit_wall:.0f} s of real time'
+            if reason:
+                break
+        if tty:
+            print(flush=True)
+        if rospy.is_shutdown():
+            return
+        self.finish(reason, sim, wall, wall0)
+        rospy.signal_shutdown('demo finished')
+
+    def finish(self, reason: str, sim: float, wall: float, wall0: float) -> None:
+        # one more merge cycle so the merged map includes the robots' final maps
+        end = time.monotonic()
+        while time.monotonic() - end < 5.0 and not rospy.is_shutdown():
+            with self.lock:
+                if self.merged is not None and self.merged_at > end + 1.0:
+                    break
+            time.sleep(0.2)
+        share = self.explored()
+        rows, truth_from_merged = self.placements()
+        merged_share = self.merged_share(truth_from_merged)
+        os.makedirs(self.out, exist_ok=True)
+        files = {}
+        with self.lock:
+            merged = self.merged
+        if merged is not None:
+            yaml_path, pgm_path = save_map(merged, os.path.join(self.out, 'merged'))
+            png_path = save_png(merged, os.path.join(self.out, 'merged.png'))
+            files = {'yaml': yaml_path, 'pgm': pgm_path, 'png': png_path}
+        summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
+                   'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
+                   'placement': rows, 'files': files}
+        lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
+                 f"demo: explored {_pct(share)} of the reachable area (the robots' maps at their "
+                 f"true poses); the merged map covers {_pct(merged_share)}",
+                 f"demo: map_merge placed {sum(r['included'] for r in rows)} of {len(rows)} robots without known "
+                 f"initial poses; error against the ground truth:"]
+        for r in rows:
+            if 'rotation_error_deg' in r:
+                lines.append(f"demo:   {r['robot']}: rotation {r['rotation_error_deg']:.2f} deg, corners "
+                             f"{100 * r['corner_error_m']:.1f} cm ({r['corner_error_cells']:.1f} cells)"
+                             + (' (reference)' if r['robot'] == r['reference'] else ''))
+            else:
+                lines.append(f"demo:   {r['robot']}: not in the merged map")
+        lines.append(f"demo: merged map {files['yaml']} (+ .pgm, .png)" if files else 'demo: no merged map received')
+        text = '\n'.join(lines)
+        with open(os.path.join(self.out, 'summary.json'), 'w') as f:
+            json.dump(summary, f, indent=2)
+        with open(os.path.join(self.out, 'summary.txt'), 'w') as f:
+            f.write(text + '\n')
+        print(text, flush=True)
+
+
+def _pct(v: Optional[float]) -> str:
+    return 'n/a' if v is None else f'{100 * v:.1f} %'
+
+
+if __name__ == '__main__':
+    rospy.init_node('demo_supervisor')
+    Supervisor().run()

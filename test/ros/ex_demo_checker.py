@@ -1,0 +1,97 @@
+#!/usr/bin/env python3
+"""rostest checker for the live demo (launch/demo.launch in a short configuration).
+
+test_merge_matches_ground_truth: map_merge's latched status places all ~num_robots robots (unknown initial poses)
+    and each placement, relative to the first robot, is within ~max_rotation_deg and ~max_corner_m of the
+    simulator's ground truth (largest displacement of the corners of the robot map's known area).
+test_demo_writes_merged_map: the demo supervisor ends (every explorer stopped, or its limit) and writes
+    ~out/summary.json and the merged map ~out/merged.yaml (+ .pgm, .png); placed in the ground-truth world through
+    map_merge's placement, the written map covers at least ~min_merged_share of the reachable area.
+"""
+import json
+import os
+import shutil
+import sys
+import unittest
+
+import rospy
+import rostest
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid
+
+from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
+from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.msg import MergeStatus
+from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
+
+PKG = 'multirobot_map_merge'
+
+
+def _pose(p, q):
+    return p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+
+
+class DemoCheck(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.names = [f'robot_{i + 1}' for i in range(int(rospy.get_param('~num_robots', 3)))]
+        cls.out = rospy.get_param('~out')
+        cls.truth = {}
+        for n in cls.names:
+            msg = rospy.wait_for_message(f'/{n}/ground_truth/start_pose', PoseStamped, timeout=60.0)
+            cls.truth[n] = _pose(msg.pose.position, msg.pose.orientation)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.out, ignore_errors=True)
+
+    def placed(self, status):
+        entries = {e.robot_namespace.strip('/'): e for e in status.robots}
+        return {n: _pose(entries[n].transform.translation, entries[n].transform.rotation)
+                for n in self.names if n in entries and entries[n].included}
+
+    def test_1_merge_matches_ground_truth(self):
+        topic = rospy.get_param('~status_topic', '/map_merge/map_merge/status')
+        deadline = rospy.get_time() + float(rospy.get_param('~timeout', 300.0))
+        placed = {}
+        while len(placed) < len(self.names):
+            self.assertLess(rospy.get_time(), deadline, f'map_merge placed only {sorted(placed)}')
+            status = rospy.wait_for_message(topic, MergeStatus, timeout=120.0)
+            placed = self.placed(status)
+            if len(placed) < len(self.names):
+                rospy.sleep(2.0)
+        maps = {n: grid_from_msg(rospy.wait_for_message(f'/{n}/map', OccupancyGrid, timeout=30.0))
+                for n in self.names}
+        rows = placement_errors(placed, self.truth, maps)
+        self.assertEqual(len(rows), len(self.names))
+        for r in rows:
+            rospy.loginfo('ex_demo_checker: %s', r)
+            self.assertLessEqual(r['rotation_error_deg'], float(rospy.get_param('~max_rotation_deg', 1.0)), r)
+            self.assertLessEqual(r['corner_error_m'], float(rospy.get_param('~max_corner_m', 0.15)), r)
+
+    def test_2_demo_writes_merged_map(self):
+        path = os.path.join(self.out, 'summary.json')
+        deadline = rospy.get_time() + float(rospy.get_param('~timeout', 300.0))
+        while not os.path.exists(path):
+            self.assertLess(rospy.get_time(), deadline, 'the demo wrote no summary')
+            rospy.sleep(1.0)
+        rospy.sleep(0.5)   # written in one go, but be safe
+        with open(path) as f:
+            summary = json.load(f)
+        for key in ('yaml', 'pgm', 'png'):
+            self.assertTrue(os.path.isfile(summary['files'].get(key, '')), f'no merged {key} file')
+        merged = load_map(summary['files']['yaml'])
+        status = rospy.wait_for_message(rospy.get_param('~status_topic', '/map_merge/map_merge/status'),
+                                        MergeStatus, timeout=30.0)
+        placed = self.placed(status)
+        world = grid_from_msg(rospy.wait_for_message('/fleet_sim/world_map', OccupancyGrid, timeout=30.0))
+        reach = reachable_mask(world, [p[:2] for p in self.truth.values()])
+        share = explored_share(world, reach, [(merged, truth_from_estimate(placed, self.truth))])
+        rospy.loginfo('ex_demo_checker: the merged map covers %.1f %% (%s)', 100 * share, summary['end'])
+        self.assertGreaterEqual(share, float(rospy.get_param('~min_merged_share', 0.9)))
+        self.assertEqual(len(summary['placement']), len(self.names))
+
+
+if __name__ == '__main__':
+    rospy.init_node('ex_demo_checker')
+    rostest.rosrun(PKG, 'explore_demo_check', DemoCheck, sys.argv)
