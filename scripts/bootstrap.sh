@@ -93,7 +93,7 @@ if [[ ! -f "$WS/devel/setup.bash" || "$(cat "$build_stamp" 2>/dev/null || true)"
   # The venv's python (made from /usr/bin/python3; the pyenv python3 on PATH cannot import catkin): the node
   # relay scripts catkin writes into devel/ get it as their interpreter, so nodes see the pinned numpy/OpenCV.
   run_quiet "$WS/catkin_make.log" env PATH="/usr/bin:/bin:$PATH" PYTHONDONTWRITEBYTECODE=1 \
-    catkin_make -C "$WS" -DPYTHON_EXECUTABLE="$VENV/bin/python3" -DCATKIN_ENABLE_TESTING=OFF
+    catkin_make -C "$WS" --force-cmake -DPYTHON_EXECUTABLE="$VENV/bin/python3" -DCATKIN_ENABLE_TESTING=OFF
   echo "$build_hash" >"$build_stamp"
   did+=(catkin)
 fi
