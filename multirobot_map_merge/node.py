@@ -11,10 +11,22 @@ Parameters (private, read once at start; a wrong type logs a warning and uses th
 Threads (rospy runs every subscriber on its own thread; callbacks only convert + store, or wake a worker):
   * discovery: at start, then every 1/discovery_rate s;
   * estimation (only when known_init_poses is false): every 1/estimation_rate s, or at once when a robot's first map
-    arrives; it keeps the reference robot while that robot stays in the merge;
+    arrives; it keeps the reference robot while that robot stays in the merge, and it is skipped while the robots
+    and their maps are unchanged since the last estimation (same input, same placement);
   * merging: every 1/merging_rate s: the newest maps, the last estimated transforms (kept per robot name, so they
-    follow the robot when the list grows), compose, publish.
-Loops sleep on one stop Event (wall clock), so SIGINT ends the node within a fraction of a second.
+    follow the robot when the list grows), compose, publish (and ~status after a new estimation, so that its
+    transforms match the merged map published with it).
+Locks: `_robots_lock` owns the robot list; each RobotMap has its own lock (copy-on-write grids); `_estimate_lock`
+owns the estimated transforms, the reference robot and the pending status. No lock is held while estimating or
+composing. Each pipeline has one owner thread.
+Timing: the loops are paced on ROS time, as the original's ros::Rate, so they follow /clock under use_sim_time.
+Until /clock has started (ROS time 0) they are paced on the wall clock; a jump back in ROS time starts a new period
+instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a stop request, so SIGINT ends the node
+within a fraction of a second: main() waits at most 0.5 s for a cycle still running (an estimation of many maps can
+take seconds) and exits without it, and a watchdog ends the process 1.6 s after the shutdown request whatever still
+runs. Rates are checked positive at start (no zero-period loop). An estimation that takes longer than half its
+period (many robots) is followed by a rest as long as it took, so that estimation uses at most about half of the
+node's time and merging keeps its rate. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming
@@ -25,7 +37,12 @@ robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '
 """
 from __future__ import annotations
 
+import copy
+import ctypes
+import ctypes.util
+import logging
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -36,9 +53,11 @@ import rospy
 from geometry_msgs.msg import Transform, TransformStamped
 from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
+from rospy.numpy_msg import numpy_msg
 
 from . import transforms as tf
 from .discovery import append, init_pose_param_names, robot_map_topics, robot_topics
+from .features import FeatureCache
 from .grid import Grid, GridError
 from .known_poses import InitPose
 from .msg import MergeStatus, PairMatchStatus, RobotMergeStatus
@@ -47,11 +66,17 @@ from .pipeline import MergingPipeline
 from .robot_maps import RobotMap
 from .ros_conversions import grid_from_msg, grid_to_msg, update_from_msg
 
-WARN_PERIOD = 10.0   # s between two identical warnings (same robot, same kind)
+WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
+CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
+ESTIMATION_REST = 1.0   # after an estimation that took b seconds, the next starts b * this later at the earliest
+SLICE = 0.1             # s (wall) between two checks of the stop flag while a loop waits on simulated time
+EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
+HARD_EXIT = 1.6         # s (wall) after a shutdown request the process ends even if rospy's shutdown still runs
 
 
 def _params_doc() -> str:
-    return '\n'.join(f'  ~{name} ({kind}, default {default!r})' for name, kind, default in MapMergeParams.fields_doc())
+    return '\n'.join(f'  ~{name} ({kind}, default {default!r}): {doc}'
+                     for name, kind, default, doc in MapMergeParams.fields_doc())
 
 
 __doc__ = __doc__.format(params=_params_doc())
@@ -72,6 +97,63 @@ class _Throttle:
                 return False
             self._last[key] = now
             return True
+
+
+class LoopPacer:
+    """Paces one loop at a rate in ROS time, as ros::Rate does (so it follows /clock under use_sim_time).
+
+    `wait()` returns when the period since `start_cycle()` has passed (and, with `rest_share`, at least that share
+    of the time the cycle's work took), or at once when the loop's `kick` event is set (a stop request, or the
+    estimation's wake-up). Under simulated time it waits on rospy's clock condition, which every /clock message
+    notifies, in slices of at most SLICE wall seconds; until /clock has started it paces on the wall clock; when
+    ROS time jumps back (bag loop, simulator reset) the period restarts instead of raising as rospy.Rate would.
+    """
+
+    def __init__(self, rate: float, kick: threading.Event, rest_share: float = 0.0) -> None:
+        if not (math.isfinite(rate) and rate > 0.0):
+            raise ValueError(f'loop rate {rate} is not a positive finite number')   # no zero-period loop
+        self.period = 1.0 / rate
+        self.kick = kick
+        self.rest_share = rest_share   # after a cycle that took b seconds, rest at least rest_share * b
+        self._ros0 = 0.0
+        self._wall0 = 0.0
+
+    def start_cycle(self) -> None:
+        self._ros0, self._wall0 = rospy.get_time(), time.monotonic()
+
+    def _elapsed(self) -> float:
+        """Seconds since start_cycle(): ROS time, or wall time while there is none; -1 if ROS time went back."""
+        now = rospy.get_time()
+        if self._ros0 > 0.0 and now > 0.0:
+            return now - self._ros0 if now >= self._ros0 else -1.0
+        return time.monotonic() - self._wall0   # no ROS time yet (sim time, /clock not started)
+
+    def wait(self) -> None:
+        cond = rospy.rostime.get_rostime_cond()
+        busy = max(self._elapsed(), 0.0)
+        cycle = max(self.period, busy * (1.0 + self.rest_share))
+        while not self.kick.is_set():
+            elapsed = self._elapsed()
+            if elapsed < 0.0:
+                break   # ROS time moved backwards (bag loop, simulator reset): start a new period now
+            remaining = cycle - elapsed
+            if remaining <= 0.0:
+                break
+            if rospy.rostime.is_wallclock():
+                self.kick.wait(min(remaining, 1.0))
+            else:
+                with cond:   # kick() notifies under the same lock: no wake-up is lost
+                    if not self.kick.is_set():
+                        cond.wait(SLICE)
+        self.kick.clear()
+
+    @staticmethod
+    def wake(event: threading.Event) -> None:
+        """Set a loop's kick event and wake it if it waits on simulated time."""
+        event.set()
+        cond = rospy.rostime.get_rostime_cond()
+        with cond:
+            cond.notify_all()
 
 
 @dataclass
@@ -96,6 +178,40 @@ def center_origin(merged: Grid) -> Tuple[float, float, float]:
     return (-(merged.width / 2.0) * res, -(merged.height / 2.0) * res, 0.0)
 
 
+def same_inputs(a: Tuple[List[str], List[Optional[Grid]]], b: Tuple[List[str], List[Optional[Grid]]]) -> bool:
+    """True if two (robot names, grids) snapshots hold the same robots with identical maps (content, geometry)."""
+    if a[0] != b[0]:
+        return False
+    for ga, gb in zip(a[1], b[1]):
+        if ga is gb:
+            continue
+        if ga is None or gb is None or ga.resolution != gb.resolution or ga.origin != gb.origin \
+                or not np.array_equal(ga.data, gb.data):
+            return False
+    return True
+
+
+def same_merge_inputs(a: tuple, b: tuple) -> bool:
+    """Two merge inputs (names, grids, transforms, reference) that compose to the same merged grid."""
+    if a[3] != b[3] or len(a[2]) != len(b[2]):
+        return False
+    for ta, tb in zip(a[2], b[2]):
+        if (ta is None) != (tb is None) or (ta is not None and not np.array_equal(ta, tb)):
+            return False
+    return same_inputs((a[0], a[1]), (b[0], b[1]))
+
+
+def restamped(msg: OccupancyGrid, stamp) -> OccupancyGrid:
+    """A fresh copy of a merged map message with a new stamp; the (never modified) data list is shared."""
+    out = OccupancyGrid()
+    out.header.frame_id = msg.header.frame_id
+    out.header.stamp = stamp
+    out.info = copy.deepcopy(msg.info)
+    out.info.map_load_time = stamp
+    out.data = msg.data
+    return out
+
+
 def frame_of(robot: str, grid: Optional[Grid]) -> str:
     frame = grid.frame_id if grid is not None and grid.frame_id else append(robot, 'map')
     return frame.lstrip('/')
@@ -105,17 +221,20 @@ class MapMergeNode:
     def __init__(self, params: MapMergeParams) -> None:
         self.params = params
         self._stop = threading.Event()
-        self._wake_estimation = threading.Event()
+        self._kicks: Dict[str, threading.Event] = {n: threading.Event() for n in ('discovery', 'merging', 'estimation')}
         self._throttle = _Throttle()
         self._robots_lock = threading.Lock()          # owns _robots (newest first, as the original) and _by_name
         self._robots: List[Robot] = []
         self._by_name: Dict[str, Robot] = {}
-        self._estimate_lock = threading.Lock()        # owns _transforms, _reference, _world_from_merged
+        self._estimate_lock = threading.Lock()        # owns _transforms, _reference, _pending_status
         self._transforms: Dict[str, np.ndarray] = {}  # robot name -> metric transform map frame -> merged frame
         self._reference: Optional[str] = None
-        self._world_from_merged = np.eye(3)           # last shift applied by the merge cycle (center mode)
+        self._pending_status = None   # (MergeStatus, transforms): built by estimation, completed + sent by merging
         self._merge_pipeline = MergingPipeline(params.estimation_settings())   # merging thread only
         self._estimate_pipeline = MergingPipeline(params.estimation_settings())  # estimation thread only
+        self._estimated_inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None   # estimation thread only
+        self._cache_capacity = 0                      # estimation thread only
+        self._last_merge = None                       # merging thread only: (inputs, message, world_from_merged)
         self.own_topic = rospy.resolve_name(params.merged_map_topic)
         self._map_pub = rospy.Publisher(params.merged_map_topic, OccupancyGrid, queue_size=50, latch=True)
         self._status_pub = rospy.Publisher('~status', MergeStatus, queue_size=1, latch=True)
@@ -131,11 +250,14 @@ class MapMergeNode:
 
     # ------------------------------------------------------------------ threads
     def start(self) -> List[threading.Thread]:
-        rospy.on_shutdown(self._stop.set)
-        loops = [('discovery', self.discover, self.params.discovery_rate, None),
-                 ('merging', self.merge_once, self.params.merging_rate, None)]
+        rospy.on_shutdown(self.stop)
+        loops = [('discovery', self.discover, LoopPacer(self.params.discovery_rate, self._kicks['discovery'])),
+                 ('merging', self.merge_once, LoopPacer(self.params.merging_rate, self._kicks['merging']))]
         if not self.params.known_init_poses:
-            loops.append(('estimation', self.estimate_once, self.params.estimation_rate, self._wake_estimation))
+            # an estimation of many maps can take longer than its period: rest as long as it took, so that it
+            # uses at most about half of the node's time (the original would run it back to back)
+            loops.append(('estimation', self.estimate_once,
+                          LoopPacer(self.params.estimation_rate, self._kicks['estimation'], ESTIMATION_REST)))
         threads = [threading.Thread(target=self._loop, args=loop, name=loop[0], daemon=True) for loop in loops]
         for t in threads:
             t.start()
@@ -143,27 +265,28 @@ class MapMergeNode:
 
     def stop(self) -> None:
         self._stop.set()
-        self._wake_estimation.set()
+        for kick in self._kicks.values():
+            LoopPacer.wake(kick)
 
-    def _loop(self, name: str, body, rate: float, wake: Optional[threading.Event]) -> None:
-        period = 1.0 / rate
-        while not self._stop.is_set() and not rospy.is_shutdown():
-            started = time.monotonic()
+    def stopped(self) -> bool:
+        return self._stop.is_set() or rospy.is_shutdown()
+
+    def wait_for_shutdown(self) -> None:
+        """Block until stop() or a ROS shutdown (rospy.spin() would notice the latter only every 0.5 s)."""
+        while not self.stopped():
+            self._stop.wait(0.5)
+
+    def _loop(self, name: str, body, pacer: LoopPacer) -> None:
+        while not self.stopped():
+            pacer.start_cycle()
             try:
                 body()
             except Exception as e:   # a bug or bad input in one cycle must not end the loop
                 if self._throttle(('', name)):
                     rospy.logerr('map_merge: %s cycle failed: %s: %s', name, type(e).__name__, e)
-            remaining = period - (time.monotonic() - started)
-            if wake is None:
-                self._stop.wait(max(remaining, 0.0))
-            else:
-                # short slices so a stop request is seen promptly while waiting on the wake event
-                deadline = time.monotonic() + max(remaining, 0.0)
-                while not self._stop.is_set() and time.monotonic() < deadline:
-                    if wake.wait(min(0.2, max(deadline - time.monotonic(), 0.0))):
-                        break
-                wake.clear()
+            if self.stopped():
+                break
+            pacer.wait()
 
     # ------------------------------------------------------------------ discovery (§3.2)
     def discover(self) -> None:
@@ -206,10 +329,11 @@ class MapMergeNode:
         robot = Robot(name, pose)
         map_topic, updates_topic = robot_topics(name, self.params)
         rospy.loginfo('Subscribing to MAP topic: %s.', map_topic)
-        robot.subscribers.append(rospy.Subscriber(map_topic, OccupancyGrid, self._on_map, callback_args=robot,
-                                                  queue_size=50, buff_size=1 << 24))
+        # numpy_msg: the int8[] data arrives as an ndarray (no per-cell Python ints); same type and md5 on the wire
+        robot.subscribers.append(rospy.Subscriber(map_topic, numpy_msg(OccupancyGrid), self._on_map,
+                                                  callback_args=robot, queue_size=50, buff_size=1 << 24))
         rospy.loginfo('Subscribing to MAP updates topic: %s.', updates_topic)
-        robot.subscribers.append(rospy.Subscriber(updates_topic, OccupancyGridUpdate, self._on_update,
+        robot.subscribers.append(rospy.Subscriber(updates_topic, numpy_msg(OccupancyGridUpdate), self._on_update,
                                                   callback_args=robot, queue_size=50, buff_size=1 << 24))
         with self._robots_lock:
             self._robots.insert(0, robot)   # newest first, as the original
@@ -227,7 +351,7 @@ class MapMergeNode:
         if not robot.maps.set_full(grid):
             rospy.logdebug('map_merge: robot [%s]: out-of-order older map dropped', robot.name)
         elif first:
-            self._wake_estimation.set()
+            LoopPacer.wake(self._kicks['estimation'])   # estimate at once instead of up to 1/estimation_rate later
 
     def _on_update(self, msg: OccupancyGridUpdate, robot: Robot) -> None:
         rospy.logdebug('received partial map update')
@@ -250,7 +374,18 @@ class MapMergeNode:
         rospy.logdebug('Grid pose estimation started.')
         robots, grids = self._snapshot()
         names = [r.name for r in robots]
+        if self._estimated_inputs is not None and same_inputs(self._estimated_inputs, (names, grids)):
+            # the same maps give the same placement: keep it (static maps, e.g. map_server, cost no CPU)
+            rospy.logdebug('map_merge: maps unchanged since the last estimation; transforms kept')
+            return
         pipeline = self._estimate_pipeline
+        # Features are cached per map content. Live maps change between estimations, so only the current ones are
+        # worth keeping: a capacity just above the robot count keeps memory flat (a prepared map of 200k cells
+        # takes ~4 MB; the core's default capacity, 256, could hold 1 GB of stale ones). Robots only join, and
+        # mostly together: the cache is rebuilt (features recomputed once) when their number changes.
+        capacity = len(names) + CACHE_SPARE
+        if capacity != self._cache_capacity:
+            pipeline.cache, self._cache_capacity = FeatureCache(capacity=capacity), capacity
         pipeline.feed(grids)
         with self._estimate_lock:
             reference = self._reference
@@ -261,29 +396,41 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
+        self._estimated_inputs = (names, grids)
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
+        status = self._status_of(robots, grids, result)
         with self._estimate_lock:
             self._transforms = transforms
             self._reference = names[result.reference] if result.reference is not None else None
-            world_from_merged = self._world_from_merged.copy()
-        self._publish_status(robots, grids, result, world_from_merged)
+            self._pending_status = status   # sent by the next merge cycle, with that cycle's placement
 
-    def _publish_status(self, robots: List[Robot], grids, result, world_from_merged: np.ndarray) -> None:
+    def _status_of(self, robots: List[Robot], grids, result) -> Tuple[MergeStatus, List[Optional[np.ndarray]]]:
+        """A fresh MergeStatus (robot transforms still to fill in) and the estimated transform of each entry."""
         status = MergeStatus()   # fresh message each time (latched)
-        status.header.stamp = rospy.Time.now()
         status.header.frame_id = self.params.world_frame
         status.estimation_time = float(result.seconds)
         for robot, grid, t in zip(robots, grids, result.transforms):
-            entry = RobotMergeStatus(robot_namespace=robot.name, map_frame=frame_of(robot.name, grid),
-                                     included=t is not None)
-            entry.transform = _transform_msg(world_from_merged @ t) if t is not None else Transform()
-            if t is None:
-                entry.transform.rotation.w = 1.0
-            status.robots.append(entry)
+            status.robots.append(RobotMergeStatus(robot_namespace=robot.name, map_frame=frame_of(robot.name, grid),
+                                                  included=t is not None))
         for p in result.pairs:
+            used = bool(p.accepted) and result.transforms[p.i] is not None and result.transforms[p.j] is not None
             status.pairs.append(PairMatchStatus(robot_a=robots[p.i].name, robot_b=robots[p.j].name,
                                                 matches=int(p.matches), inliers=int(p.inliers),
-                                                confidence=float(p.confidence), used=bool(p.accepted)))
+                                                confidence=float(p.confidence), used=used))
+        return status, list(result.transforms)
+
+    def _publish_status(self, world_from_merged: np.ndarray, stamp) -> None:
+        with self._estimate_lock:
+            pending, self._pending_status = self._pending_status, None
+        if pending is None:
+            return
+        status, transforms = pending
+        status.header.stamp = stamp
+        for entry, t in zip(status.robots, transforms):
+            if t is not None:
+                entry.transform = _transform_msg(world_from_merged @ t)
+            else:
+                entry.transform.rotation.w = 1.0   # identity, not an all-zero quaternion
         self._status_pub.publish(status)
 
     # ------------------------------------------------------------------ merging (§6)
@@ -301,21 +448,31 @@ class MapMergeNode:
             pipeline.set_transforms([by_name.get(r.name) for r in robots])
             names = [r.name for r in robots]
             pipeline.reference = names.index(reference) if reference in names else None
-        merged = pipeline.compose(self.params.world_frame)
-        if merged is None:
-            return   # nothing to publish this cycle, as the original
-        world_from_merged = np.eye(3)
-        if self.params.origin_mode == 'center':
-            old_origin = merged.cell_to_map()
-            merged.origin = center_origin(merged)
-            world_from_merged = merged.cell_to_map() @ tf.inverse(old_origin)
-        with self._estimate_lock:
-            self._world_from_merged = world_from_merged
+        inputs = ([r.name for r in robots], grids, pipeline.transforms, pipeline.reference)
         now = rospy.Time.now()
-        rospy.logdebug('all maps merged, publishing')
-        self._map_pub.publish(grid_to_msg(merged, stamp=now, frame_id=self.params.world_frame))
-        if self._tf is not None:
-            self._broadcast_tf(robots, grids, pipeline.transforms, world_from_merged, now)
+        last = self._last_merge
+        if last is not None and same_merge_inputs(last[0], inputs):
+            # nothing changed (static maps, or maps republished unchanged): re-send the last merge, freshly stamped
+            _, msg, world_from_merged = last
+            msg = restamped(msg, now) if msg is not None else None
+        else:
+            merged = pipeline.compose(self.params.world_frame)
+            world_from_merged = np.eye(3)
+            msg = None
+            if merged is not None:
+                if self.params.origin_mode == 'center':
+                    old_origin = merged.cell_to_map()
+                    merged.origin = center_origin(merged)
+                    world_from_merged = merged.cell_to_map() @ tf.inverse(old_origin)
+                msg = grid_to_msg(merged, stamp=now, frame_id=self.params.world_frame)
+            self._last_merge = (inputs, msg, world_from_merged)
+        if msg is not None:
+            rospy.logdebug('all maps merged, publishing')
+            self._map_pub.publish(msg)
+            if self._tf is not None:
+                self._broadcast_tf(robots, grids, pipeline.transforms, world_from_merged, now)
+        # else: nothing to publish this cycle, as the original
+        self._publish_status(world_from_merged, now)
 
     def _broadcast_tf(self, robots, grids, transforms, world_from_merged: np.ndarray, now) -> None:
         out = []
@@ -332,13 +489,49 @@ class MapMergeNode:
             self._tf.sendTransform(out)
 
 
+def limit_malloc_arenas() -> None:
+    """glibc gives each thread (rospy runs one per connection) its own malloc arena, and after a large block is
+    freed it serves blocks up to that size from the arenas instead of mmap: freed numpy arrays of a long run then
+    stay resident. Two arenas and a fixed 128 KiB mmap threshold keep RSS flat (measured: 640 -> 260 MiB after
+    4 minutes with 30 live robots). No-op where libc has no mallopt."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6')
+        m_trim_threshold, m_mmap_threshold, m_arena_max = -1, -3, -8   # glibc's malloc.h
+        libc.mallopt(m_arena_max, 2)
+        libc.mallopt(m_mmap_threshold, 128 * 1024)
+        libc.mallopt(m_trim_threshold, 128 * 1024)
+    except (OSError, AttributeError):
+        pass
+
+
+def _exit_now() -> None:
+    logging.shutdown()   # flush the log files
+    os._exit(0)
+
+
+def _start_exit_watchdog() -> None:
+    """rospy's shutdown unregisters every topic from the master and joins its threads (up to 5 s each): with many
+    robots on a loaded machine that alone can approach 2 s. The issue wants the node gone within 2 s of SIGINT."""
+    timer = threading.Timer(HARD_EXIT, _exit_now)
+    timer.daemon = True
+    timer.start()
+
+
 def main() -> None:
+    limit_malloc_arenas()   # first: arenas are created by the threads started from here on
     rospy.init_node('map_merge')
+    rospy.on_shutdown(_start_exit_watchdog)   # the first shutdown hook: runs before rospy's own clean-up
     params = MapMergeParams.read(rospy.get_param, '~', warn=rospy.logwarn)
     rospy.loginfo('map_merge: %s', params)
     node = MapMergeNode(params)
     threads = node.start()
-    rospy.spin()
+    node.wait_for_shutdown()
     node.stop()
+    deadline = time.monotonic() + EXIT_GRACE
     for t in threads:
-        t.join(timeout=1.0)
+        t.join(timeout=max(deadline - time.monotonic(), 0.0))
+    busy = [t.name for t in threads if t.is_alive()]
+    if busy:
+        # a long estimation cannot be interrupted, and its worker pool would be joined at interpreter exit
+        rospy.loginfo('map_merge: exiting without waiting for the running %s cycle', ', '.join(busy))
+        _exit_now()

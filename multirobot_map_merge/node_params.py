@@ -17,30 +17,40 @@ from .settings import EstimationSettings
 ORIGIN_MODES = ('center', 'world')
 
 
+def _p(default: Any, doc: str) -> Any:
+    """A parameter: its code default and its one-line meaning (the node docstring and README table use both)."""
+    return dataclasses.field(default=default, metadata={'doc': doc})
+
+
 @dataclass(frozen=True)
 class MapMergeParams:
-    # --- the original's parameters (private namespace ~), same names, types and code defaults ---
-    merging_rate: float = 4.0             # Hz, merge-and-publish loop
-    discovery_rate: float = 0.05          # Hz, robot discovery (every 20 s)
-    estimation_rate: float = 0.5          # Hz, transform estimation (only when known_init_poses is false)
-    known_init_poses: bool = True         # true: transforms from <robot_ns>/map_merge/init_pose_*; false: estimated
-    estimation_confidence: float = 1.0    # confidence a matched pair needs to be merged
-    robot_map_topic: str = 'map'          # last name component of the robots' map topics
-    robot_map_updates_topic: str = 'map_updates'  # last name component of the robots' map update topics
-    robot_namespace: str = ''             # plain substring filter on full topic names
-    merged_map_topic: str = 'map'         # output topic, relative to the node namespace
-    world_frame: str = 'world'            # frame_id of the merged map
+    # --- the original's parameters (private namespace ~), same names, types and code defaults (§2.3) ---
+    merging_rate: float = _p(4.0, 'Hz of the merge-and-publish loop (ROS time)')
+    discovery_rate: float = _p(0.05, 'Hz of the robot discovery loop (every 20 s); the first pass runs at start-up')
+    estimation_rate: float = _p(0.5, 'Hz of the transform estimation loop (only when known_init_poses is false)')
+    known_init_poses: bool = _p(True, "true: place each map by its robot's map_merge/init_pose_* parameters; "
+                                      'false: estimate the transforms from the maps')
+    estimation_confidence: float = _p(1.0, 'confidence threshold of a matched pair (Brown-Lowe: inliers / (8 + 0.3 '
+                                           'matches))')
+    robot_map_topic: str = _p('map', 'last name component of the robots\' map topics')
+    robot_map_updates_topic: str = _p('map_updates', 'last name component of the robots\' map update topics')
+    robot_namespace: str = _p('', 'plain substring that a robot map topic name must contain ("" = every robot)')
+    merged_map_topic: str = _p('map', 'merged map topic, relative to the node namespace (latched)')
+    world_frame: str = _p('world', 'frame_id of the merged map (and parent frame of publish_tf)')
     # --- opt-in extras of this port (defaults keep the original's behaviour where it is not a bug) ---
-    publish_tf: bool = False              # broadcast world_frame -> each included robot's map frame
-    origin_mode: str = 'center'           # 'center': origin centred on world_frame as the original; 'world': metric
-    legacy_cell_poses: bool = False       # init poses in cells, inverted, corner pivot (the original 2.x, §8.3)
-    feature: str = 'akaze'                # keypoint detector of the estimator (EstimationSettings.feature)
+    publish_tf: bool = _p(False, 'extra: broadcast world_frame -> each merged robot map frame at merging_rate')
+    origin_mode: str = _p('center', 'extra: "center" puts the merged grid\'s centre at world_frame\'s origin (the '
+                                    'original); "world" keeps the grid at its true place in world_frame')
+    legacy_cell_poses: bool = _p(False, 'extra: read init poses as the C++ 2.x node does (cells, inverted, corner '
+                                        'pivot)')
+    feature: str = _p('akaze', 'extra: keypoint detector of the estimator (akaze as the original, orb, sift)')
 
     @classmethod
-    def fields_doc(cls) -> List[Tuple[str, str, Any]]:
-        """(name, type name, default) of every parameter, for the node docstring and the README table."""
-        return [(f.name, _TYPE_NAMES[f.type if isinstance(f.type, type) else _ANNOT[f.type]], f.default)
-                for f in dataclasses.fields(cls)]
+    def fields_doc(cls) -> List[Tuple[str, str, Any, str]]:
+        """(name, type name, default, meaning) of every parameter: the one source of the node docstring and of
+        the README table (scripts/param_table.py)."""
+        return [(f.name, _TYPE_NAMES[f.type if isinstance(f.type, type) else _ANNOT[f.type]], f.default,
+                 f.metadata.get('doc', '')) for f in dataclasses.fields(cls)]
 
     @classmethod
     def read(cls, get_param: Callable[[str, Any], Any], prefix: str = '~',

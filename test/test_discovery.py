@@ -68,3 +68,26 @@ def test_params_read_types():
     assert p.origin_mode == 'world' and p.discovery_rate == 0.05
     assert len(warnings) == 4 and all('using the default' in w for w in warnings)
     assert MapMergeParams.read(lambda n, d: d) == MapMergeParams()
+
+
+def test_param_table_lists_every_parameter_from_the_dataclass():
+    """scripts/param_table.py (the README table) and the node docstring come from MapMergeParams' fields."""
+    import dataclasses
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parent.parent / 'scripts' / 'param_table.py'
+    spec = importlib.util.spec_from_file_location('param_table', script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    table = module.table().splitlines()
+    fields = dataclasses.fields(MapMergeParams)
+    for f in fields:
+        assert f.metadata.get('doc'), f'{f.name} has no meaning documented'
+        row = [r for r in table if r.startswith(f'| `~{f.name}` |')]
+        assert len(row) == 1, f.name
+        default = {True: 'true', False: 'false'}.get(f.default, f.default) if isinstance(f.default, bool) \
+            else f.default
+        assert f'`{default}`' in row[0] or f'`"{default}"`' in row[0], row[0]
+    assert MapMergeParams().merging_rate == 4.0 and MapMergeParams().known_init_poses is True
+    assert [r for r in table if 'init_pose' in r and r.startswith('| `<robot_ns>')]

@@ -2,8 +2,8 @@
 """Test helper: keeps publishing malformed input, once per second, cycling through the cases.
 
 Full maps on ~map_topic (a robot of its own): data length != width * height, NaN resolution, zero resolution,
-a huge width x height with little data. Updates on ~updates_topic (of a good robot): out of bounds, wrong data
-length, negative x.
+negative resolution, an infinite or NaN origin, a huge width x height with little data. Updates on ~updates_topic
+(of a good robot): out of bounds, wrong data length, negative x.
 """
 import itertools
 
@@ -25,6 +25,12 @@ def bad_map(case):
         m.info.resolution = float('nan')
     elif case == 'zero':
         m.info.resolution = 0.0
+    elif case == 'negative':
+        m.info.resolution = -0.05
+    elif case == 'inf_origin':
+        m.info.origin.position.x = float('inf')
+    elif case == 'nan_origin':
+        m.info.origin.position.y = float('nan')
     elif case == 'huge':
         m.info.width, m.info.height = 100000, 100000
     return m
@@ -49,7 +55,7 @@ def main():
     map_pub = rospy.Publisher(rospy.get_param('~map_topic', '/robot3/map'), OccupancyGrid, queue_size=5, latch=True)
     upd_pub = rospy.Publisher(rospy.get_param('~updates_topic', '/robot1/map_updates'), OccupancyGridUpdate,
                               queue_size=5)
-    maps = itertools.cycle(['length', 'nan', 'zero', 'huge'])
+    maps = itertools.cycle(['length', 'nan', 'zero', 'negative', 'inf_origin', 'nan_origin', 'huge'])
     updates = itertools.cycle(['outside', 'length', 'negative'])
     while not rospy.is_shutdown():
         map_pub.publish(bad_map(next(maps)))

@@ -2,11 +2,14 @@
 """rostest node for the map_merge tests: waits for the merged map and checks it.
 
 Params: ~topic (merged map, default /map_merge/map), ~timeout (s), ~frame (expected frame_id, default world),
-~min_known_cells (int), ~min_larger_than (list of "w,h": the merged map must be larger in area than each), ~occupied_points (list of
-"x,y": world points, metres, that must be occupied in the merged map within ~tolerance metres),
-~status_topic (optional: a MergeStatus that must list exactly ~status_included robots as included
-and use a pair), ~metadata_topic + ~metadata_size [w, h] (a latched MapMetaData to check), ~tf_child + ~tf_expected [x, y, yaw] (a tf world_frame -> tf_child to look up), ~stable_for (s: after
-the first merged map that passes, keep checking that later maps still satisfy the checks for this long).
+~min_known_cells (int), ~min_larger_than (list of "w,h": the merged map must be larger in area than each),
+~occupied_points (list of "x,y": world points, metres, that must be occupied in the merged map within ~tolerance
+metres), ~status_topic (optional: a MergeStatus that must list exactly ~status_included robots as included and use a
+pair), ~metadata_topic + ~metadata_size [w, h] (a latched MapMetaData to check), ~tf_child + ~tf_expected [x, y, yaw]
+(a tf world_frame -> tf_child to look up), ~stable_for (s: after the first merged map that passes, keep checking
+that later maps still satisfy the checks for this long),
+~warn_node + ~warn_robots (list): every listed robot must be named in a WARN of that node on /rosout, and warnings
+about one robot must stay throttled (at most 2 kinds x one per ~warn_period s).
 """
 import sys
 import unittest
@@ -41,6 +44,12 @@ class MergeCheck(unittest.TestCase):
             self.assertTrue(window.size and (window >= 65).any(), f'no wall near ({x}, {y}) (cell {c}, {r})')
 
     def test_merged_map(self):
+        from rosgraph_msgs.msg import Log
+        warnings = []
+        warn_node = rospy.get_param('~warn_node', '')
+        rosout = rospy.Subscriber('/rosout', Log, lambda m: warnings.append(m.msg)
+                                  if m.name == warn_node and m.level == Log.WARN else None, queue_size=100)
+        watch_start = rospy.get_time()
         topic = rospy.get_param('~topic', '/map_merge/map')
         deadline = rospy.get_time() + float(rospy.get_param('~timeout', 40.0))
         # early merged maps may hold one robot only (before the first estimation): wait for one that passes
@@ -62,6 +71,14 @@ class MergeCheck(unittest.TestCase):
             self.assertGreater(newer.header.stamp, grid.header.stamp, 'the merged map is no longer published')
             self.check(newer)
             grid = newer
+        rosout.unregister()
+        window = rospy.get_time() - watch_start
+        period = float(rospy.get_param('~warn_period', 10.0))
+        for robot in rospy.get_param('~warn_robots', []):
+            about = [w for w in warnings if f'robot [{robot}]' in w]
+            self.assertTrue(about, f'no warning names {robot} in {window:.0f} s')
+            self.assertLessEqual(len(about), 2 * (window // period + 1), f'warnings about {robot} not throttled: '
+                                 f'{len(about)} in {window:.0f} s')
         meta_topic = rospy.get_param('~metadata_topic', '')
         if meta_topic:
             from nav_msgs.msg import MapMetaData

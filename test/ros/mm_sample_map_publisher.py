@@ -1,19 +1,15 @@
 #!/usr/bin/env python3
 """Test helper: publishes map_server map files latched, one OccupancyGrid per topic.
 
-Params: ~maps: list of "topic=relative/or/absolute.yaml" (relative to the repo's data/samples);
-~frame_ids (optional list, same order; default: '<topic ns>/map'); ~delay (s, default 0) before publishing; ~lifetime (s, default 0 = forever): exit after it (a robot
-that vanishes).
+Params: ~maps: list of "topic=relative/or/absolute.yaml" (relative to the repo's data/samples); ~frame_ids
+(optional list, same order; default: '<topic ns>/map'); ~delay (s, default 0) before publishing; ~lifetime (s,
+default 0 = forever): exit after it (a robot that vanishes).
 """
-import os
-
 import rospy
 from nav_msgs.msg import OccupancyGrid
 
-from multirobot_map_merge.mapio import load_map
+from mm_common import load_spec
 from multirobot_map_merge.ros_conversions import grid_to_msg
-
-SAMPLES = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'data', 'samples')
 
 
 def main():
@@ -23,9 +19,9 @@ def main():
     rospy.sleep(float(rospy.get_param('~delay', 0.0)))
     pubs = []
     for k, spec in enumerate(specs):
-        topic, path = spec.split('=', 1)
+        topic = spec.split('=', 1)[0]
         frame = frames[k] if k < len(frames) else topic.rsplit('/', 1)[0].strip('/') + '/map'
-        grid = load_map(os.path.join(SAMPLES, path), frame)
+        grid = load_spec(spec, frame)[1]
         pub = rospy.Publisher(topic, OccupancyGrid, queue_size=1, latch=True)
         pub.publish(grid_to_msg(grid, stamp=rospy.Time.now()))
         pubs.append(pub)
