@@ -72,14 +72,20 @@ fi
 
 # --- 3. catkin workspace -----------------------------------------------------
 mkdir -p "$WS/src"
-link="$WS/src/$PKG_NAME"
-if [[ "$(readlink "$link" 2>/dev/null || true)" != "../.." ]]; then
-  rm -rf "$link"
-  ln -s ../.. "$link"
-fi
+# The package in the workspace is a directory of links to the repository's top-level entries, not one link to the
+# repository: the repository holds .ws itself, and rosrun's `find -L` would otherwise walk into the workspace and
+# list every node several times. Hidden entries (.ws, .venv, .git) are left out by the glob.
+pkg_src="$WS/src/$PKG_NAME"
+[[ -L "$pkg_src" ]] && rm -f "$pkg_src"
+mkdir -p "$pkg_src"
+for entry in "$REPO"/*; do
+  name=$(basename "$entry")
+  [[ "$(readlink "$pkg_src/$name" 2>/dev/null || true)" == "../../../$name" ]] || ln -sfn "../../../$name" "$pkg_src/$name"
+done
+for link in "$pkg_src"/*; do [[ -e "$link" ]] || rm -f "$link"; done
 build_hash=$(
   cd "$REPO"
-  { echo "$REPO venv-python"; ls nodes; sha256sum package.xml CMakeLists.txt setup.py; find msg -maxdepth 1 -type f -print0 2>/dev/null \
+  { echo "$REPO venv-python package-links"; ls nodes; sha256sum package.xml CMakeLists.txt setup.py; find msg -maxdepth 1 -type f -print0 2>/dev/null \
       | sort -z | xargs -0r sha256sum; } | sha256sum | cut -d' ' -f1
 )
 build_stamp="$WS/.build.sha256"
@@ -90,6 +96,8 @@ if [[ ! -f "$WS/devel/setup.bash" || "$(cat "$build_stamp" 2>/dev/null || true)"
   fi
   log "catkin_make (log: .ws/catkin_make.log)"
   rm -f "$build_stamp"
+  # node entry points of an older layout (catkin does not remove them; rosrun would find each node twice)
+  rm -rf "$WS/devel/lib/$PKG_NAME"
   # The venv's python (made from /usr/bin/python3; the pyenv python3 on PATH cannot import catkin): the node
   # relay scripts catkin writes into devel/ get it as their interpreter, so nodes see the pinned numpy/OpenCV.
   run_quiet "$WS/catkin_make.log" env PATH="/usr/bin:/bin:$PATH" PYTHONDONTWRITEBYTECODE=1 \

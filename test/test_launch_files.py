@@ -24,7 +24,9 @@ def _ros_env() -> bool:
         return False
     try:
         import rospkg
-        return Path(rospkg.RosPack().get_path('multirobot_map_merge')).resolve() == REPO
+        # the workspace's package directory links to the repository's entries
+        pkg = Path(rospkg.RosPack().get_path('multirobot_map_merge'))
+        return (pkg / 'package.xml').resolve() == REPO / 'package.xml'
     except Exception:
         return False
 

@@ -36,7 +36,7 @@ def start_node(ns, *params):
     log = tempfile.NamedTemporaryFile('w', prefix=f'mm_sigint{ns.replace("/", "_")}_', suffix='.log', delete=False,
                                       dir=os.environ.get('ROS_LOG_DIR') or None)
     cmd = [exe, '__name:=map_merge', f'__ns:={ns}', '_merged_map_topic:=merged', '_discovery_rate:=2.0',
-           '_known_init_poses:=false', '_estimation_confidence:=0.0', f'_merging_rate:={MERGING_RATE}', *params]
+           '_known_init_poses:=false', f'_merging_rate:={MERGING_RATE}', *params]
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL), log.name
 
 
