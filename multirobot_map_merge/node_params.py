@@ -30,8 +30,8 @@ class MapMergeParams:
     estimation_rate: float = _p(0.5, 'Hz of the transform estimation loop (only when known_init_poses is false)')
     known_init_poses: bool = _p(True, "true: place each map by its robot's map_merge/init_pose_* parameters; "
                                       'false: estimate the transforms from the maps')
-    estimation_confidence: float = _p(1.0, 'confidence threshold of a matched pair (Brown-Lowe: inliers / (8 + 0.3 '
-                                           'matches))')
+    estimation_confidence: float = _p(1.0, 'confidence threshold of a matched pair: the original\'s '
+                                           'inliers / (8 + 0.3 matches), counted on verified wall correspondences')
     robot_map_topic: str = _p('map', 'last name component of the robots\' map topics')
     robot_map_updates_topic: str = _p('map_updates', 'last name component of the robots\' map update topics')
     robot_namespace: str = _p('', 'plain substring that a robot map topic name must contain ("" = every robot)')
