@@ -25,32 +25,28 @@ def _write_int8_array(buff, arr: np.ndarray) -> None:
     buff.write(flat.tobytes())
 
 
-class ArrayOccupancyGrid(OccupancyGrid):
+class _ArrayData:
+    """Mixin: the message's int8 `data` field is serialised from the numpy array `array` (no Python list)."""
+    __slots__ = ()
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.array = np.zeros((0, 0), np.int8)
+
+    def serialize(self, buff) -> None:
+        self.data = []
+        super().serialize(buff)
+        _write_int8_array(buff, self.array)
+
+
+class ArrayOccupancyGrid(_ArrayData, OccupancyGrid):
     """nav_msgs/OccupancyGrid whose data is the numpy array ``array`` (row-major, row 0 = origin row)."""
     __slots__ = ('array',)
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.array = np.zeros((0, 0), np.int8)
 
-    def serialize(self, buff) -> None:
-        self.data = []
-        super().serialize(buff)
-        _write_int8_array(buff, self.array)
-
-
-class ArrayOccupancyGridUpdate(OccupancyGridUpdate):
+class ArrayOccupancyGridUpdate(_ArrayData, OccupancyGridUpdate):
     """map_msgs/OccupancyGridUpdate whose data is the numpy array ``array``."""
     __slots__ = ('array',)
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.array = np.zeros((0, 0), np.int8)
-
-    def serialize(self, buff) -> None:
-        self.data = []
-        super().serialize(buff)
-        _write_int8_array(buff, self.array)
 
 
 def grid_msg(values: np.ndarray, resolution: float, origin, frame_id: str, stamp) -> ArrayOccupancyGrid:
