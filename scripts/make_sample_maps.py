@@ -48,6 +48,12 @@ SCENARIOS: Dict[str, dict] = {
         (12.0, 7.1, 100.0, [(11.0, 10.5), (12.5, 13.8), (14.7, 10.0), (14.7, 13.5)]),
         (21.0, 6.9, -140.0, [(21.5, 3.0), (14.0, 7.0), (14.7, 3.5), (17.5, 3.0)]),
     ]},
+    # a chain: the first and last robot maps share nothing, so the last is placed through the middle one
+    'chain3': {'kind': 'group', 'max_range': 4.0, 'fraction': (0.0, 0.7), 'robots': [
+        (3.0, 7.0, 0.0, [(7.5, 7.0)]),
+        (12.0, 7.1, 100.0, [(5.0, 7.0), (19.0, 7.0)]),
+        (21.0, 6.9, -140.0, [(16.5, 7.0)]),
+    ]},
     'no_overlap': {'kind': 'pair_none', 'max_range': 4.0, 'fraction': (0.0, 0.0), 'robots': [
         (3.0, 5.0, 30.0, [(1.5, 2.0)]),
         (21.5, 14.0, -120.0, [(22.0, 10.0)]),

@@ -226,3 +226,17 @@ def test_pair_confidence_counts_verified_correspondences():
     assert pair_confidence(300, 300) == pytest.approx(300 / 98.0)
     # a pair passing the acceptance rules (>= 100 agreeing walls, >= 90 % agreement) passes the default 1.0
     assert pair_confidence(100, 111) > 1.0
+
+
+def test_strict_chain_of_three_maps(repo_root):
+    """data/samples/chain3: the first and last maps share nothing, so the last is placed through the middle one,
+    two hops from the reference, at its own rotation."""
+    folder = repo_root / 'data' / 'samples' / 'chain3'
+    truth = json.loads((folder / 'truth.json').read_text())
+    assert truth['overlap']['shared_m2'][0][2] == 0.0
+    p = MergingPipeline()
+    p.feed([load_map(str(folder / m['file'])) for m in truth['maps']])
+    p.estimate()
+    for k in range(3):
+        rot, cells = placement_error(truth, p.transforms, p.reference, k)
+        assert rot <= 1.5 and cells <= 3

@@ -2,7 +2,7 @@
 """rostest checker for the live demo (launch/demo.launch in a short configuration).
 
 test_merge_matches_ground_truth: map_merge's latched status places all ~num_robots robots (unknown initial poses)
-    and each placement, relative to the first robot, is within ~max_rotation_deg and ~max_corner_m of the
+    and, when the demo has ended, each placement, relative to the first robot, is within ~max_rotation_deg and ~max_corner_m of the
     simulator's ground truth (largest displacement of the corners of the robot map's known area).
 test_demo_writes_merged_map: the demo supervisor ends (every explorer stopped, or its limit) and writes
     ~out/summary.json and the merged map ~out/merged.yaml (+ .pgm, .png); placed in the ground-truth world through
@@ -60,6 +60,12 @@ class DemoCheck(unittest.TestCase):
             placed = self.placed(status)
             if len(placed) < len(self.names):
                 rospy.sleep(2.0)
+        # The first placements come from small early maps; judge the merge the demo ends with (its maps' corners
+        # are where a small rotation error shows), so wait for the demo's summary and take the latest status.
+        summary = os.path.join(self.out, 'summary.json')
+        while not os.path.exists(summary) and rospy.get_time() < deadline:
+            rospy.sleep(1.0)
+        placed = self.placed(rospy.wait_for_message(topic, MergeStatus, timeout=120.0))
         maps = {n: grid_from_msg(rospy.wait_for_message(f'/{n}/map', OccupancyGrid, timeout=30.0))
                 for n in self.names}
         rows = placement_errors(placed, self.truth, maps)
