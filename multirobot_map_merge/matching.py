@@ -32,6 +32,7 @@ class Placement:
     agreement: float = 0.0      # support / wall pixels of both maps inside the common known area
     overlap_m2: float = 0.0     # common known area
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
+    opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
 
     def score(self, conflict_weight: float) -> float:
         """Support less weighted conflicts: a shifted alias in a repetitive building overlaps more (more support)
@@ -218,40 +219,10 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         neutral = int(weight[faces].sum())
         support -= neutral
     result.support = support
-    result.conflicts = n_i + n_j - support - (neutral if s.faces_neutral else 0)
+    result.conflicts = n_i + n_j - support - neutral
+    result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts, 1))
     return result
-
-
-def opposite_sides(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> float:
-    """Share of the agreeing walls that the two maps see from opposite sides.
-
-    Two robots on either side of a wall each map only their own face of it; matching those faces puts the maps a
-    wall's thickness off (often more than the placement tolerance). Where the common evidence is mostly such faces,
-    the placement is not known precisely enough to merge.
-    """
-    h, w = pj.work.shape
-    warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
-    near_i = cv2.distanceTransform(np.where(warped >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
-    agreeing = (pj.work >= 50) & (near_i <= s.verify_tolerance) & (warped >= 0)
-    rows, cols = np.nonzero(agreeing)
-    if rows.size == 0:
-        return 0.0
-    r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
-    c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
-    side_i = free_side_field(warped[r0:r1, c0:c1])
-    side_j = pj.free_side[r0:r1, c0:c1]
-    rr, cc = rows - r0, cols - c0
-    # the wall pixel of i may sit a pixel or two beside j's: take i's direction over a small neighbourhood
-    side_i = cv2.blur(side_i, (5, 5))
-    gxi, gyi, gxj, gyj = side_i[..., 0], side_i[..., 1], side_j[..., 0], side_j[..., 1]
-    dot = gxi[rr, cc] * gxj[rr, cc] + gyi[rr, cc] * gyj[rr, cc]
-    mag = np.hypot(gxi[rr, cc], gyi[rr, cc]) * np.hypot(gxj[rr, cc], gyj[rr, cc])
-    sided = mag > 1e-3
-    if sided.sum() < 10:
-        return 0.0
-    return float((dot[sided] < -0.3 * mag[sided]).mean())
 
 
 def plausible(c: Placement, s: EstimationSettings) -> bool:
@@ -357,7 +328,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     elif rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
-    elif opposite_sides(pi, pj, best.transform, s) > s.max_opposite_share:
+    elif best.opposed > s.max_opposite_share * (best.support + best.opposed):
         result.reason = 'the maps share mostly walls seen from opposite sides'
     elif result.confidence < s.confidence:
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'

@@ -198,7 +198,7 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     """Robot A maps a room, robot B the corridor behind its wall: each sees only its own face of the wall, and
     matching the faces puts the maps a wall's thickness off: such placements are recognised (and refused)."""
     from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.matching import opposite_sides, verify
+    from multirobot_map_merge.matching import verify
     from multirobot_map_merge.settings import EstimationSettings
     world = np.zeros((200, 240), np.int8)
     world[100:106, 20:220] = 100            # a wall 30 cm thick between a room (below) and a corridor (above)
@@ -212,11 +212,13 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     pa, pb = (prepare(Grid(d, 0.05), 0.05, 'akaze') for d in (room, corridor))
     # working pixels of the room onto the corridor's, the room's face (row 100) onto the corridor's (row 105)
     faces_on_faces = tf.inverse(pb.px_to_map) @ tf.translation(0.0, 5 * 0.05) @ pa.px_to_map
-    assert opposite_sides(pa, pb, faces_on_faces, s) > 0.9
-    assert opposite_sides(pa, pa, np.eye(3), s) == 0.0
-    # the faces neither support nor contradict the placement (they would, compared without their sides)
     faced = verify(pa, pb, faces_on_faces, s)
-    assert faced.support == 0 and faced.conflicts == 0
+    # the faces neither support nor contradict the placement, and are counted as seen from opposite sides
+    assert faced.support == 0 and faced.conflicts == 0 and faced.opposed > 100
+    assert faced.opposed > s.max_opposite_share * (faced.support + faced.opposed)
+    same = verify(pa, pa, np.eye(3), s)
+    assert same.opposed == 0 and same.support > 100
+    # compared without their sides, the faces would support the placement
     assert verify(pa, pb, faces_on_faces, s.replace(facing=False)).support > 100
 
 
