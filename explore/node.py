@@ -31,7 +31,7 @@ import math
 import sys
 import threading
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 import rospy
@@ -46,6 +46,7 @@ from visualization_msgs.msg import MarkerArray
 
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.ros_conversions import grid_from_msg
+from multirobot_map_merge.throttle import Throttle
 
 from .costmap import Costmap, CostmapError
 from .frontier_search import Frontier, FrontierSearch
@@ -73,23 +74,6 @@ def _params_doc() -> str:
 __doc__ = __doc__.format(params=_params_doc())
 
 
-class _Throttle:
-    """Per-key throttling (rospy's *_throttle keys on the call site; we want one key per kind of problem)."""
-
-    def __init__(self, period: float = WARN_PERIOD) -> None:
-        self._period = period
-        self._last: Dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    def __call__(self, key: str) -> bool:
-        now = time.monotonic()
-        with self._lock:
-            if now - self._last.get(key, -math.inf) < self._period:
-                return False
-            self._last[key] = now
-            return True
-
-
 def resolve_tf_prefix(frame: str) -> str:
     """tf1's resolve of ``robot_base_frame`` with a ``tf_prefix`` found up the parameter tree (explore.md §3.4)."""
     if frame.startswith('/'):
@@ -107,7 +91,7 @@ def _yaw_quaternion(q) -> Tuple[float, float, float, float]:
 class ExploreNode:
     def __init__(self, params: ExploreParams) -> None:
         self.p = params
-        self._throttle = _Throttle()
+        self._throttle = Throttle(WARN_PERIOD)
         self.costmap = Costmap(params.probability_map, params.free_threshold, params.occupied_threshold,
                                by_threshold=True)
         self.search = FrontierSearch(self.costmap, params.potential_scale, params.gain_scale,

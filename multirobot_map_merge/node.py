@@ -65,6 +65,7 @@ from .node_params import MapMergeParams
 from .pipeline import MergingPipeline
 from .robot_maps import RobotMap
 from .ros_conversions import grid_from_msg, grid_to_msg, update_from_msg
+from .throttle import Throttle
 
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
@@ -80,23 +81,6 @@ def _params_doc() -> str:
 
 
 __doc__ = __doc__.format(params=_params_doc())
-
-
-class _Throttle:
-    """Per-key throttling: rospy's *_throttle helpers key on the call site, which would hide other robots."""
-
-    def __init__(self, period: float = WARN_PERIOD) -> None:
-        self._period = period
-        self._last: Dict[Tuple[str, ...], float] = {}
-        self._lock = threading.Lock()
-
-    def __call__(self, key: Tuple[str, ...]) -> bool:
-        now = time.monotonic()
-        with self._lock:
-            if now - self._last.get(key, -math.inf) < self._period:
-                return False
-            self._last[key] = now
-            return True
 
 
 class LoopPacer:
@@ -222,7 +206,7 @@ class MapMergeNode:
         self.params = params
         self._stop = threading.Event()
         self._kicks: Dict[str, threading.Event] = {n: threading.Event() for n in ('discovery', 'merging', 'estimation')}
-        self._throttle = _Throttle()
+        self._throttle = Throttle(WARN_PERIOD)
         self._robots_lock = threading.Lock()          # owns _robots (newest first, as the original) and _by_name
         self._robots: List[Robot] = []
         self._by_name: Dict[str, Robot] = {}
