@@ -201,7 +201,11 @@ class Supervisor:
         os.makedirs(self.out, exist_ok=True)
         files = {}
         with self.lock:
-            merged = self.merged
+            merged, robot_maps = self.merged, dict(self.maps)
+        # each robot's own map too, so a merge can be replayed offline (nodes/merge_maps out/demo/robots/*.yaml)
+        os.makedirs(os.path.join(self.out, 'robots'), exist_ok=True)
+        for name, grid in robot_maps.items():
+            save_map(grid, os.path.join(self.out, 'robots', name))
         if merged is not None:
             yaml_path, pgm_path = save_map(merged, os.path.join(self.out, 'merged'))
             png_path = save_png(merged, os.path.join(self.out, 'merged.png'))
