@@ -328,8 +328,6 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     elif rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
-    elif best.opposed > s.max_opposite_share * (best.support + best.opposed):
-        result.reason = 'the maps share mostly walls seen from opposite sides'
     elif result.confidence < s.confidence:
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
     else:
