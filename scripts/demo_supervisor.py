@@ -212,7 +212,9 @@ class Supervisor:
             files = {'yaml': yaml_path, 'pgm': pgm_path, 'png': png_path}
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
-                   'placement': rows, 'files': files}
+                   'placement': rows, 'files': files,
+                   # ground-truth start poses (x, y, yaw in the world): with robots/*.yaml, a merge replays offline
+                   'start_poses': {name: list(pose) for name, pose in sorted(self.starts.items())}}
         lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
                  f"demo: explored {_pct(share)} of the reachable area (the robots' maps at their "
                  f"true poses); the merged map covers {_pct(merged_share)}",

@@ -43,7 +43,9 @@ class DemoCheck(unittest.TestCase):
 
     @classmethod
     def tearDownClass(cls):
-        shutil.rmtree(cls.out, ignore_errors=True)
+        # MMM_KEEP_TEST_OUTPUT=1 keeps the demo's output (robot maps, start poses) to replay a merge offline
+        if not os.environ.get('MMM_KEEP_TEST_OUTPUT'):
+            shutil.rmtree(cls.out, ignore_errors=True)
 
     def placed(self, status):
         entries = {e.robot_namespace.strip('/'): e for e in status.robots}
