@@ -18,6 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .features import PreparedGrid, free_side_field
+from .polish import polish
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
@@ -307,6 +308,10 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # unscreened: a turned placement is far off until ICP pulls it in
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
     candidates.sort(key=rank, reverse=True)
+    if plausible(candidates[0], s) and candidates[0].support < s.polish_below_support:
+        # ICP is precise on a large common area (there the polish measured worse), not always on a small one
+        polished = verify(pi, pj, polish(pi, pj, candidates[0].transform, rng), s)
+        candidates[0] = polished if plausible(polished, s) else candidates[0]
     best = candidates[0]
     result.best = best
     result.alternatives = candidates[1:]

@@ -1,0 +1,108 @@
+"""Final polish of a chosen placement: a direct search on a symmetric consistency cost.
+
+ICP pairs each wall with its nearest neighbour; on a small common area (a corridor seen from both ends, thin walls
+seen from opposite sides, whose pairs ICP drops) it can settle a degree or a few pixels off. Here the placement of
+grid i on grid j moves in shrinking steps of rotation and translation while this cost goes down:
+
+    mean, over the walls of either grid that land well inside the other's known area (where the other map looked
+    and would have seen them), of min(distance to the other's nearest wall, TAU)^2
+
+Both directions count, so neither grid's extra walls bias the result; walls at the edge of the other's known area
+(the ends of its beams) and beyond it say nothing and are left out. The cost only ranks nearby placements:
+acceptance stays with the matcher's verification.
+"""
+from __future__ import annotations
+
+import math
+from typing import Tuple
+
+import cv2
+import numpy as np
+
+from . import transforms as tf
+from .features import PreparedGrid
+
+TAU = 3.0            # pixels: a wall further than this from the other's walls costs the same however far
+FRINGE = 1.5         # pixels: walls this close to the other's unknown area are left out (ends of its beams)
+MIN_POINTS = 20      # walls needed on the common area for the cost to mean anything
+MAX_POINTS = 3000    # walls sampled per grid
+FIRST_STEPS = (math.radians(0.5), 1.0)   # rotation (rad) and translation (pixels) steps to start with
+LAST_STEP = 0.1      # pixels: stop when the translation step shrinks below this
+MAX_MOVES = 80
+
+
+def known_depth(work: np.ndarray) -> np.ndarray:
+    """Distance (pixels) of every pixel to the nearest unknown pixel; outside the image counts as unknown."""
+    known = np.pad(np.where(work >= 0, 255, 0).astype(np.uint8), 1)
+    return cv2.distanceTransform(known, cv2.DIST_L2, 3)[1:-1, 1:-1]
+
+
+class _OneWay:
+    """Walls of `src` against the distance field of `dst`."""
+
+    def __init__(self, src: PreparedGrid, dst: PreparedGrid, rng: np.random.Generator) -> None:
+        pick = np.arange(len(src.walls))
+        if pick.size > MAX_POINTS:
+            pick = rng.choice(pick.size, MAX_POINTS, replace=False)
+        self.points = src.walls[pick]
+        self.dst = dst
+        self.deep = known_depth(dst.work) > FRINGE
+
+    def cost(self, model: np.ndarray) -> Tuple[float, int]:
+        moved = np.rint(tf.apply(model, self.points)).astype(np.int64)
+        h, w = self.dst.work.shape
+        inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h)
+        idx = np.flatnonzero(inside)
+        x, y = moved[idx, 0], moved[idx, 1]
+        keep = self.deep[y, x]
+        if not keep.any():
+            return 0.0, 0
+        d = np.minimum(self.dst.wall_distance[y[keep], x[keep]].astype(np.float64), TAU)
+        return float((d * d).sum()), int(keep.sum())
+
+
+def polish(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The placement (pixels i -> pixels j) near `model` with the lowest symmetric wall-distance cost."""
+    forward, backward = _OneWay(pi, pj, rng), _OneWay(pj, pi, rng)
+
+    def cost(m: np.ndarray) -> float:
+        a, na = forward.cost(m)
+        b, nb = backward.cost(tf.inverse(m))
+        return (a + b) / (na + nb) if na + nb >= MIN_POINTS else math.inf
+
+    # turn about the middle of i's walls as placed, so that rotation and translation steps are independent
+    centre = tf.apply(model, pi.walls).mean(axis=0) if len(pi.walls) else np.zeros(2)
+
+    def moved(p: np.ndarray) -> np.ndarray:
+        c, s = math.cos(p[0]), math.sin(p[0])
+        step = np.array([[c, -s, centre[0] - c * centre[0] + s * centre[1] + p[1]],
+                         [s, c, centre[1] - s * centre[0] - c * centre[1] + p[2]], [0.0, 0.0, 1.0]])
+        return step @ model
+
+    return moved(_descend(cost, moved))
+
+
+def _descend(cost, moved) -> np.ndarray:
+    """Pattern search from the zero step: the step (rotation, x, y) with the lowest cost."""
+    best = cost(moved(np.zeros(3)))
+    p = np.zeros(3)
+    if not math.isfinite(best):
+        return p
+    steps = np.array([FIRST_STEPS[0], FIRST_STEPS[1], FIRST_STEPS[1]])
+    for _ in range(MAX_MOVES):
+        for k in range(3):
+            for sign in (1.0, -1.0):
+                q = p.copy()
+                q[k] += sign * steps[k]
+                c = cost(moved(q))
+                if c < best - 1e-9:
+                    best, p = c, q
+                    break
+            else:
+                continue
+            break
+        else:
+            steps /= 2.0
+            if steps[1] < LAST_STEP:
+                break
+    return p
