@@ -21,7 +21,9 @@ import numpy as np
 from . import transforms as tf
 from .features import FeatureCache, PreparedGrid
 from .grid import Grid
-from .matching import PairMatch, match_pair
+from .compose import compose
+from .features import prepare
+from .matching import PairMatch, match_pair, plausible, verify
 from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation')
@@ -85,9 +87,34 @@ def tree_transforms(tree: nx.Graph, reference: int) -> Dict[int, np.ndarray]:
     return out
 
 
+def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.ndarray]],
+                  grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
+                  settings: EstimationSettings) -> List[int]:
+    """Grids placed before but not now keep their previous placement while they still agree with the placed
+    ones together (the same acceptance rules as a pair). A live map that grew can lose its only match for a while
+    (a new part resembles something else); dropping it from the merged map until then helps no one. Returns the
+    grids kept."""
+    lost = [k for k, t in enumerate(previous) if t is not None and k not in placed and prepared[k] is not None]
+    if not lost:
+        return []
+    others = compose([g if k in placed else None for k, g in enumerate(grids)],
+                     [placed.get(k) for k in range(len(grids))])
+    context = prepare(others, res, None) if others is not None else None
+    kept = []
+    for k in lost if context is not None else []:
+        model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
+        if plausible(verify(prepared[k], context, model, settings), settings):
+            kept.append(k)
+    for k in kept:
+        placed[k] = np.asarray(previous[k], float)
+    return kept
+
+
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
-             preferred_reference: Optional[int] = None) -> Estimate:
-    """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform."""
+             preferred_reference: Optional[int] = None,
+             previous: Optional[Sequence[Optional[np.ndarray]]] = None) -> Estimate:
+    """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform, unless `previous`
+    (the last estimate's transforms, same grid order) placed them and they still agree (see keep_previous)."""
     settings.validate()
     t0 = time.perf_counter()
     cache = cache or FeatureCache()
@@ -115,6 +142,14 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     else:
         reference = min(nx.center(tree)) if len(component) > 1 else component[0]
     placed = tree_transforms(tree, reference)
+    kept = []
+    if previous is not None and reference == preferred_reference and len(previous) == len(grids) \
+            and previous[reference] is not None and np.allclose(previous[reference], np.eye(3)):
+        # same reference, so the same merged frame
+        kept = keep_previous(placed, previous, usable, prepared, res, settings)
+        if kept:
+            log.info('kept the previous placement of grid(s) %s: no pair places them now, but they still agree '
+                     'with the placed grids', ', '.join(map(str, kept)))
     for k, t in placed.items():
         transforms[k] = t
 

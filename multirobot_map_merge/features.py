@@ -115,8 +115,8 @@ def make_detector(kind: str):
     raise ValueError(f"unknown feature type '{kind}' (choose from {', '.join(FEATURE_TYPES)})")
 
 
-def prepare(grid: Grid, work_resolution: float, feature: str) -> Optional[PreparedGrid]:
-    """Crop, resample and describe one grid; None if the grid has no known cell."""
+def prepare(grid: Grid, work_resolution: float, feature: Optional[str]) -> Optional[PreparedGrid]:
+    """Crop, resample and describe one grid (no keypoints if feature is None); None if no cell is known."""
     box = crop_to_known(grid.data)
     if box is None:
         return None
@@ -127,7 +127,8 @@ def prepare(grid: Grid, work_resolution: float, feature: str) -> Optional[Prepar
     px_to_cell = np.array([[1.0 / scale, 0.0, c0 + 0.5 / scale], [0.0, 1.0 / scale, r0 + 0.5 / scale], [0, 0, 1.0]])
     px_to_map = grid.cell_to_map() @ px_to_cell
 
-    keypoints, descriptors = make_detector(feature).detectAndCompute(feature_image(work), None)
+    keypoints, descriptors = (make_detector(feature).detectAndCompute(feature_image(work), None) if feature
+                              else ((), None))   # no feature: for comparing walls only
     pts = np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2)
 
     occupied = work >= 50

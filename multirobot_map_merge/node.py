@@ -373,9 +373,11 @@ class MapMergeNode:
         pipeline.feed(grids)
         with self._estimate_lock:
             reference = self._reference
+            previous = [self._transforms.get(n) for n in names]
         preferred = names.index(reference) if reference in names and grids[names.index(reference)] is not None \
             else None
-        result = pipeline.estimate(preferred_reference=preferred)
+        # a robot placed before stays placed while its map still agrees with the others (Differences, README)
+        result = pipeline.estimate(preferred_reference=preferred, previous=previous)
         for p in result.pairs:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,

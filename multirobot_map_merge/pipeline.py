@@ -46,11 +46,13 @@ class MergingPipeline:
             self.reference = None
         self.grids = grids
 
-    def estimate(self, preferred_reference: Optional[int] = None) -> Estimate:
-        """Estimate transforms from the grids' content (unknown initial poses)."""
+    def estimate(self, preferred_reference: Optional[int] = None,
+                 previous: Optional[Sequence[Optional[np.ndarray]]] = None) -> Estimate:
+        """Estimate transforms from the grids' content (unknown initial poses); `previous` (transforms of the
+        current grids from the last estimate) keeps grids placed that no pair places now but still agree."""
         if preferred_reference is None:
             preferred_reference = self.reference
-        result = estimate(self.grids, self.settings, self.cache, preferred_reference)
+        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous)
         self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
         return result
 

@@ -287,3 +287,29 @@ def test_small_thin_walled_overlap_is_placed_precisely(repo_root):
     assert m.accepted, m.reason
     rot, cells = _corner_error(g2, tf.inverse(m.transform_m), true_m)
     assert rot < 1.0 and cells < 3.0, (rot, cells)
+
+
+def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
+    """Final maps of a live demo run where no pair places robot_2 any more (its new corridor resembles another).
+    Its earlier placement is kept when it still agrees with the placed maps, and dropped when it does not."""
+    from multirobot_map_merge.estimation import estimate
+    from multirobot_map_merge.settings import EstimationSettings
+    folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    names = ['robot_1', 'robot_2', 'robot_3']
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
+    s = EstimationSettings()
+    fresh = estimate(grids, s, preferred_reference=0)
+    assert fresh.reference == 0 and fresh.transforms[1] is None and fresh.transforms[2] is not None
+    # the true placement of robot_2 in robot_1's frame, as an earlier estimation would have found it
+    right = tf.inverse(tf.rigid(*starts['robot_1'])) @ tf.rigid(*starts['robot_2'])
+    previous = [np.eye(3), right, fresh.transforms[2]]
+    kept = estimate(grids, s, preferred_reference=0, previous=previous)
+    assert kept.transforms[1] is not None and np.allclose(kept.transforms[1], right)
+    # a previous placement half a metre off contradicts the maps: not kept
+    wrong = tf.translation(0.5, 0.0) @ right
+    dropped = estimate(grids, s, preferred_reference=0, previous=[np.eye(3), wrong, fresh.transforms[2]])
+    assert dropped.transforms[1] is None
+    # another reference means another merged frame: previous placements do not apply
+    other = estimate(grids, s, preferred_reference=2, previous=previous)
+    assert other.transforms[1] is None
