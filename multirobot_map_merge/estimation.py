@@ -19,10 +19,9 @@ import networkx as nx
 import numpy as np
 
 from . import transforms as tf
-from .features import FeatureCache, PreparedGrid
-from .grid import Grid
 from .compose import compose
-from .features import prepare
+from .features import FeatureCache, PreparedGrid, prepare
+from .grid import Grid
 from .matching import PairMatch, match_pair, plausible, verify
 from .settings import EstimationSettings
 
@@ -100,8 +99,10 @@ def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.
     others = compose([g if k in placed else None for k, g in enumerate(grids)],
                      [placed.get(k) for k in range(len(grids))])
     context = prepare(others, res, None) if others is not None else None
+    if context is None:
+        return []
     kept = []
-    for k in lost if context is not None else []:
+    for k in lost:
         model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
         if plausible(verify(prepared[k], context, model, settings), settings):
             kept.append(k)
@@ -142,7 +143,6 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     else:
         reference = min(nx.center(tree)) if len(component) > 1 else component[0]
     placed = tree_transforms(tree, reference)
-    kept = []
     if previous is not None and reference == preferred_reference and len(previous) == len(grids) \
             and previous[reference] is not None and np.allclose(previous[reference], np.eye(3)):
         # same reference, so the same merged frame
