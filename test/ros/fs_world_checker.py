@@ -17,6 +17,7 @@ import rostest
 import tf2_ros
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import LaserScan
 
 from multirobot_map_merge.mapio import load_map
@@ -54,6 +55,9 @@ class WorldFileCheck(unittest.TestCase):
         for i in range(self.n):
             for j in range(i + 1, self.n):
                 self.assertGreaterEqual(math.dist(starts[i], starts[j]), 1.0)
+        # and on the wall clock the simulator publishes no /clock for other nodes to follow
+        with self.assertRaises(rospy.ROSException):
+            rospy.wait_for_message('/clock', Clock, timeout=2.0)
 
     def test_maps_tf_and_scans(self):
         buf = tf2_ros.Buffer()
