@@ -18,7 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .features import PreparedGrid, free_side_field
-from .polish import polish
+from .polish import known_depth, polish
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
@@ -34,6 +34,7 @@ class Placement:
     overlap_m2: float = 0.0     # common known area
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
+    deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
 
     def score(self, conflict_weight: float) -> float:
         """Support less weighted conflicts: a shifted alias in a repetitive building overlaps more (more support)
@@ -185,7 +186,8 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
 
     Only walls in the common known area count. A wall near a wall of the other map supports the placement, unless
     the two were seen from opposite sides (a wall's two faces: neither support nor conflict); any other wall there
-    contradicts it.
+    contradicts it. A contradiction at the fringe of the other map's view (the ends of its beams) is common at the
+    right placement; one well inside it is not (deep_conflicts).
     """
     h, w = pj.work.shape
     warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
@@ -221,14 +223,20 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         support -= neutral
     result.support = support
     result.conflicts = n_i + n_j - support - neutral
+    # the window reaches 8 pixels past the common area, so depths up to that are exact
+    deep = s.deep_conflict_m / pi.resolution
+    result.deep_conflicts = int((walls_i & ~near_j & (known_depth(wj) > deep)).sum()
+                                + (walls_j & ~near_i & (known_depth(wi) > deep)).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts, 1))
     return result
 
 
 def plausible(c: Placement, s: EstimationSettings) -> bool:
-    """Agrees well over a common area large enough to mean something."""
-    return c.agreement >= s.min_agreement and c.overlap_m2 >= s.min_overlap_m2 and c.support >= s.min_support
+    """Agrees well over a common area large enough to mean something, and (almost) everywhere well inside both
+    maps' views."""
+    return (c.agreement >= s.min_agreement and c.overlap_m2 >= s.min_overlap_m2 and c.support >= s.min_support
+            and c.deep_conflicts <= s.max_deep_conflicts * c.support)
 
 
 def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) -> List[np.ndarray]:
@@ -330,6 +338,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         result.reason = f'overlap {best.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
     elif best.support < s.min_support:
         result.reason = f'support {best.support} < {s.min_support}'
+    elif best.deep_conflicts > s.max_deep_conflicts * best.support:
+        result.reason = (f'{best.deep_conflicts} contradicting walls well inside both maps, more than '
+                         f'{s.max_deep_conflicts:.0%} of {best.support} agreeing')
     elif rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')

@@ -27,6 +27,8 @@ class EstimationSettings:
     min_agreement: float = 0.91       # share of walls in the common area that agree (support > 10 x conflicts)
     min_overlap_m2: float = 4.0       # common known area a pair needs
     min_support: int = 100            # agreeing wall pixels a pair needs
+    deep_conflict_m: float = 0.2      # a contradicting wall this far inside the other map's view is not at its fringe
+    max_deep_conflicts: float = 0.01  # such contradictions a pair tolerates, as a share of its agreeing walls
     conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
     ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
     facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP

@@ -221,6 +221,38 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     assert verify(pa, pb, faces_on_faces, s.replace(facing=False)).support > 100
 
 
+def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
+    """At the right placement walls contradict only at the fringe of the other map's view (the ends of its beams);
+    a wall well inside an area the other map saw free contradicts the placement."""
+    from multirobot_map_merge.features import prepare
+    from multirobot_map_merge.matching import plausible, verify
+    from multirobot_map_merge.settings import EstimationSettings
+    room = np.full((200, 240), -1, np.int8)
+    room[40:160, 40:200] = 0
+    room[40:160, 40] = room[40:160, 199] = room[40, 40:200] = room[159, 40:200] = 100
+    s = EstimationSettings()
+    short = room.copy()
+    short[100:159, 199] = 0             # beams that ended on the wall marked its cells free: the view's fringe
+    inside = room.copy()
+    inside[80:120, 120] = 100           # a partition where the other map saw free floor
+    pr, ps, pi = (prepare(Grid(d, 0.05), 0.05, 'akaze') for d in (room, short, inside))
+    at_fringe = verify(pr, ps, tf.inverse(ps.px_to_map) @ pr.px_to_map, s)
+    assert at_fringe.conflicts > 0 and at_fringe.deep_conflicts == 0 and plausible(at_fringe, s)
+    contradicted = verify(pi, pr, tf.inverse(pr.px_to_map) @ pi.px_to_map, s)
+    assert contradicted.deep_conflicts >= 30 and contradicted.agreement > s.min_agreement
+    assert not plausible(contradicted, s)
+
+
+def test_placement_contradicted_inside_both_views_is_not_merged(shared_dir):
+    """pair_small_simple_rooms_2: two rooms off one corridor crossing, each map seeing one; the crossings repeat in
+    the building, and the best placement of one map on the other agrees 95 % but contradicts in the middle of a room."""
+    grids, _ = scenario(shared_dir, 'pair_small_simple_rooms_2')
+    p = MergingPipeline()
+    p.feed(grids)
+    p.estimate()
+    assert sum(t is not None for t in p.transforms) == 1
+
+
 def test_pair_confidence_counts_verified_correspondences():
     from multirobot_map_merge.matching import pair_confidence
     assert pair_confidence(0, 100) == 0.0
