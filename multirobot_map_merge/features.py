@@ -37,6 +37,7 @@ class PreparedGrid:
     resolution: float           # working resolution (m/pixel)
     free_side: np.ndarray = None  # (H, W, 2) float32 direction towards nearby free space (see free_side_field)
     wall_normals: np.ndarray = None  # (M, 2) free_side at each wall pixel
+    known_depth: np.ndarray = None   # (H, W) float32 distance (pixels) of every pixel to the nearest unknown one
 
     @property
     def known_pixels(self) -> int:
@@ -83,6 +84,12 @@ def resample(data: np.ndarray, scale: float) -> np.ndarray:
     out[free] = 0
     out[occ] = 100
     return out
+
+
+def known_depth(work: np.ndarray) -> np.ndarray:
+    """Distance (pixels) of every pixel to the nearest unknown pixel; outside the image counts as unknown."""
+    known = np.pad(np.where(work >= 0, 255, 0).astype(np.uint8), 1)
+    return cv2.distanceTransform(known, cv2.DIST_L2, 3)[1:-1, 1:-1]
 
 
 def free_side_field(work: np.ndarray) -> np.ndarray:
@@ -144,7 +151,7 @@ def prepare(grid: Grid, work_resolution: float, feature: Optional[str]) -> Optio
         nearest = np.full(work.shape, -1, np.int64)
     side = free_side_field(work)
     return PreparedGrid(work, px_to_map, pts, descriptors, walls, dist, nearest, work_resolution, side,
-                        side[wall_rows, wall_cols].astype(np.float64))
+                        side[wall_rows, wall_cols].astype(np.float64), known_depth(work))
 
 
 def content_key(grid: Grid) -> str:

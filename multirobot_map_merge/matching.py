@@ -18,7 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .features import PreparedGrid, free_side_field
-from .polish import known_depth, polish
+from .polish import polish
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
@@ -223,10 +223,15 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         support -= neutral
     result.support = support
     result.conflicts = n_i + n_j - support - neutral
-    # the window reaches 8 pixels past the common area, so depths up to that are exact
     deep = s.deep_conflict_m / pi.resolution
-    result.deep_conflicts = int((walls_i & ~near_j & (known_depth(wj) > deep)).sum()
-                                + (walls_j & ~near_i & (known_depth(wi) > deep)).sum())
+    result.deep_conflicts = int((pj.known_depth[r0:r1, c0:c1][walls_i & ~near_j] > deep).sum())
+    rows, cols = np.nonzero(walls_j & ~near_i)
+    if rows.size:
+        # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
+        back = np.rint(tf.apply(tf.inverse(model), np.column_stack([cols + c0, rows + r0]))).astype(np.int64)
+        hi, wi_ = pi.work.shape
+        inside = (back[:, 0] >= 0) & (back[:, 1] >= 0) & (back[:, 0] < wi_) & (back[:, 1] < hi)
+        result.deep_conflicts += int((pi.known_depth[back[inside, 1], back[inside, 0]] > deep).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts, 1))
     return result

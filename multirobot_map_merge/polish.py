@@ -31,12 +31,6 @@ LAST_STEP = 0.1      # pixels: stop when the translation step shrinks below this
 MAX_MOVES = 80
 
 
-def known_depth(work: np.ndarray) -> np.ndarray:
-    """Distance (pixels) of every pixel to the nearest unknown pixel; outside the image counts as unknown."""
-    known = np.pad(np.where(work >= 0, 255, 0).astype(np.uint8), 1)
-    return cv2.distanceTransform(known, cv2.DIST_L2, 3)[1:-1, 1:-1]
-
-
 class _OneWay:
     """Walls of `src` against the distance field of `dst`."""
 
@@ -46,7 +40,7 @@ class _OneWay:
             pick = rng.choice(pick.size, MAX_POINTS, replace=False)
         self.points = src.walls[pick]
         self.dst = dst
-        self.deep = known_depth(dst.work) > FRINGE
+        self.deep = dst.known_depth > FRINGE
 
     def cost(self, model: np.ndarray) -> Tuple[float, int]:
         moved = np.rint(tf.apply(model, self.points)).astype(np.int64)
