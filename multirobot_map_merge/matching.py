@@ -309,8 +309,10 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
 
     candidates = refine_all(hypotheses(p, q, s, rng))
     best = max(candidates, key=rank, default=None)
-    if search and (best is None or not plausible(best, s)):
-        # too few good descriptor matches (small overlaps): search placements by correlation instead
+    contradicted = best is not None and plausible(best, s.replace(max_deep_conflicts=math.inf))
+    if search and (best is None or not plausible(best, s)) and not contradicted:
+        # too few good descriptor matches (small overlaps): search placements by correlation instead;
+        # not when the maps agree but contradict inside both views (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees))
         best = max(candidates, key=rank, default=None)
     if best is None:
