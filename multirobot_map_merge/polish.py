@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from typing import Tuple
 
-import cv2
 import numpy as np
 
 from . import transforms as tf

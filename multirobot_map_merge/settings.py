@@ -51,6 +51,8 @@ class EstimationSettings:
                 raise ValueError(f'{name} must be positive, not {getattr(self, name)}')
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
+        if not (self.deep_conflict_m >= 0.0 and self.max_deep_conflicts >= 0.0):
+            raise ValueError('deep_conflict_m and max_deep_conflicts must not be negative')
         if self.confidence != self.confidence:
             raise ValueError('confidence must be a number, not NaN')
 
