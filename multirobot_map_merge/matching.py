@@ -3,8 +3,9 @@
 For a pair (i, j): putative descriptor matches (ratio test, both directions, union as the original), several rigid
 RANSAC hypotheses (the metadata fixes the scale, so the model is rigid), each refined by ICP on wall pixels and
 checked against the maps themselves: walls of one map must lie on walls of the other wherever both are known.
-A pair is accepted only when its best placement agrees well, overlaps enough, and no clearly different placement
-agrees almost as well (symmetric buildings make such aliases; a guess there would be a wrong merge).
+A pair is accepted only when its best placement agrees well, overlaps enough, is pinned down precisely enough by
+the walls the maps share (precision.py), and no clearly different placement agrees almost as well (symmetric
+buildings make such aliases; a guess there would be a wrong merge).
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ import numpy as np
 from . import transforms as tf
 from .features import PreparedGrid, free_side_field
 from .polish import polish
+from .precision import corner_error
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
@@ -30,11 +32,13 @@ class Placement:
     """A candidate rigid transform from pixels of grid i to pixels of grid j, with its verification figures."""
     transform: np.ndarray
     support: int = 0            # wall pixels (of both maps) that lie on a wall of the other map
-    agreement: float = 0.0      # support / wall pixels of both maps inside the common known area
+    agreement: float = 0.0      # support / (support + conflicts other than fringe_conflicts)
     overlap_m2: float = 0.0     # common known area
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
     deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
+    fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
+    corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
 
     def score(self, conflict_weight: float) -> float:
         """Support less weighted conflicts: a shifted alias in a repetitive building overlaps more (more support)
@@ -187,7 +191,8 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     Only walls in the common known area count. A wall near a wall of the other map supports the placement, unless
     the two were seen from opposite sides (a wall's two faces: neither support nor conflict); any other wall there
     contradicts it. A contradiction at the fringe of the other map's view (the ends of its beams) is common at the
-    right placement; one well inside it is not (deep_conflicts).
+    right placement and does not lower the agreement (fringe_conflicts); one well inside it is rare there
+    (deep_conflicts).
     """
     h, w = pj.work.shape
     warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
@@ -223,17 +228,20 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         support -= neutral
     result.support = support
     result.conflicts = n_i + n_j - support - neutral
-    deep = s.deep_conflict_m / pi.resolution
-    result.deep_conflicts = int((pj.known_depth[r0:r1, c0:c1][walls_i & ~near_j] > deep).sum())
+    # how deep inside the other map's view each contradicting wall lies
+    depth = [pj.known_depth[r0:r1, c0:c1][walls_i & ~near_j]]
     rows, cols = np.nonzero(walls_j & ~near_i)
     if rows.size:
         # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
         back = np.rint(tf.apply(tf.inverse(model), np.column_stack([cols + c0, rows + r0]))).astype(np.int64)
         hi, wi_ = pi.work.shape
         inside = (back[:, 0] >= 0) & (back[:, 1] >= 0) & (back[:, 0] < wi_) & (back[:, 1] < hi)
-        result.deep_conflicts += int((pi.known_depth[back[inside, 1], back[inside, 0]] > deep).sum())
+        depth.append(pi.known_depth[back[inside, 1], back[inside, 0]])
+    depth = np.concatenate(depth)
+    result.deep_conflicts = int((depth > s.deep_conflict_m / pi.resolution).sum())
+    result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
     result.opposed = neutral
-    result.agreement = support / float(max(support + result.conflicts, 1))
+    result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
     return result
 
 
@@ -313,7 +321,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     if search and (best is None or not plausible(best, s)) and not contradicted:
         # too few good descriptor matches (small overlaps): search placements by correlation instead;
         # not when the maps agree but contradict inside both views (a broken map): a search finds the same
-        candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees))
+        candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,
+                                                      keep=s.search_keep, penalty=s.search_penalty,
+                                                      free_reward=s.search_free_reward))
         best = max(candidates, key=rank, default=None)
     if best is None:
         result.reason = 'no rigid model'
@@ -336,6 +346,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.confidence = pair_confidence(result.inliers, result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
 
+    if plausible(best, s):
+        best.corner_error_m = corner_error(pi, pj, best.transform, s.verify_tolerance) * pi.resolution
     best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c, best, pi, s) and plausible(c, s)
                   and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
@@ -348,6 +360,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     elif best.deep_conflicts > s.max_deep_conflicts * best.support:
         result.reason = (f'{best.deep_conflicts} contradicting walls well inside both maps, more than '
                          f'{s.max_deep_conflicts:.0%} of {best.support} agreeing')
+    elif best.corner_error_m > s.max_corner_error_m:
+        result.reason = (f'imprecise: the shared walls leave the far corners uncertain by '
+                         f'{best.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
     elif rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')

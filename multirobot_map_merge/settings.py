@@ -5,6 +5,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from .features import FEATURE_TYPES
+from .search import FREE_REWARD, PENALTY
 
 
 @dataclass
@@ -24,11 +25,13 @@ class EstimationSettings:
     icp_iterations: int = 6           # at most, per level
     icp_max_points: int = 2000
     verify_tolerance: float = 2.0     # pixels: a wall "agrees" when the other map has a wall this close
-    min_agreement: float = 0.91       # share of walls in the common area that agree (support > 10 x conflicts)
+    min_agreement: float = 0.91       # share of walls in the common area that agree (fringe ones aside)
     min_overlap_m2: float = 4.0       # common known area a pair needs
     min_support: int = 100            # agreeing wall pixels a pair needs
     deep_conflict_m: float = 0.2      # a contradicting wall this far inside the other map's view is not at its fringe
     max_deep_conflicts: float = 0.01  # such contradictions a pair tolerates, as a share of its agreeing walls
+    max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
+    fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
     conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
     ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
     facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP
@@ -37,6 +40,9 @@ class EstimationSettings:
     distinct_metres: float = 1.0
     search_factor: int = 4            # working pixels per pixel of the correlation search
     search_sweep_degrees: float = 3.0  # rotation step of the search for maps without straight walls
+    search_penalty: float = PENALTY   # correlation search: cost of a wall on the other's open floor
+    search_free_reward: float = FREE_REWARD  # correlation search: reward of floor both maps saw free
+    search_keep: int = 8              # correlation search: candidates refined
     threads: int = 2                  # pairs matched in parallel
     seed: int = 0
 
@@ -51,8 +57,10 @@ class EstimationSettings:
                 raise ValueError(f'{name} must be positive, not {getattr(self, name)}')
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
-        if not (self.deep_conflict_m >= 0.0 and self.max_deep_conflicts >= 0.0):
-            raise ValueError('deep_conflict_m and max_deep_conflicts must not be negative')
+        for name in ('deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m', 'search_penalty',
+                     'search_free_reward', 'search_keep'):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f'{name} must not be negative, not {getattr(self, name)}')
         if self.confidence != self.confidence:
             raise ValueError('confidence must be a number, not NaN')
 

@@ -238,9 +238,39 @@ def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
     pr, ps, pi = (prepare(Grid(d, 0.05), 0.05, 'akaze') for d in (room, short, inside))
     at_fringe = verify(pr, ps, tf.inverse(ps.px_to_map) @ pr.px_to_map, s)
     assert at_fringe.conflicts > 0 and at_fringe.deep_conflicts == 0 and plausible(at_fringe, s)
+    # contradictions right at the fringe do not lower the agreement; counted, they would
+    assert at_fringe.fringe_conflicts > 0 and at_fringe.agreement == 1.0
+    assert verify(pr, ps, tf.inverse(ps.px_to_map) @ pr.px_to_map, s.replace(fringe_px=0.0)).agreement < 1.0
     contradicted = verify(pi, pr, tf.inverse(pr.px_to_map) @ pi.px_to_map, s)
     assert contradicted.deep_conflicts >= 30 and contradicted.agreement > s.min_agreement
     assert not plausible(contradicted, s)
+
+
+def test_few_shared_walls_close_together_leave_the_placement_imprecise():
+    """A robot that saw only one corner of an 18 m hall agrees perfectly with a map of the whole hall, but the two
+    short walls of the corner leave the angle loose: a turn about the corner moves the hall's far end by decimetres.
+    A view of the hall's whole left third is pinned down by its longer walls."""
+    from multirobot_map_merge.features import prepare
+    from multirobot_map_merge.matching import match_pair, verify
+    from multirobot_map_merge.precision import corner_error
+    from multirobot_map_merge.settings import EstimationSettings
+    hall = np.full((120, 400), -1, np.int8)
+    hall[20:100, 20:380] = 0
+    hall[20:100, 20] = hall[20:100, 379] = hall[20, 20:380] = hall[99, 20:380] = 100
+    corner = np.full(hall.shape, -1, np.int8)
+    corner[10:70, 10:80] = hall[10:70, 10:80]
+    third = hall.copy()
+    third[:, 120:] = -1
+    s = EstimationSettings()
+    ph, pc, pt = (prepare(Grid(d, 0.05), 0.05, 'akaze') for d in (hall, corner, third))
+    corner_at = tf.inverse(ph.px_to_map) @ pc.px_to_map
+    third_at = tf.inverse(ph.px_to_map) @ pt.px_to_map
+    assert verify(pc, ph, corner_at, s).agreement == 1.0
+    loose = corner_error(pc, ph, corner_at, s.verify_tolerance) * 0.05
+    pinned = corner_error(pt, ph, third_at, s.verify_tolerance) * 0.05
+    assert pinned < s.max_corner_error_m < loose, (pinned, loose)
+    refused = match_pair(0, 1, pc, ph, s)
+    assert not refused.accepted and refused.reason.startswith('imprecise'), refused.reason
 
 
 def test_placement_contradicted_inside_both_views_is_not_merged(shared_dir):
@@ -322,15 +352,17 @@ def test_small_thin_walled_overlap_is_placed_precisely(repo_root):
 
 
 def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
-    """Final maps of a live demo run where no pair places robot_2 any more (its new corridor resembles another).
-    Its earlier placement is kept when it still agrees with the placed maps, and dropped when it does not."""
+    """Final maps of a live demo run where descriptors place no pair with robot_2 any more (its new corridor
+    resembles another). With the correlation search scored as in earlier versions (no reward for free space seen
+    by both, a milder penalty), nothing places it: its earlier placement is kept when it still agrees with the
+    placed maps, and dropped when it does not."""
     from multirobot_map_merge.estimation import estimate
     from multirobot_map_merge.settings import EstimationSettings
     folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
     starts = json.loads((folder / 'start_poses.json').read_text())
     names = ['robot_1', 'robot_2', 'robot_3']
     grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
-    s = EstimationSettings()
+    s = EstimationSettings(search_penalty=1.0, search_free_reward=0.0)
     fresh = estimate(grids, s, preferred_reference=0)
     assert fresh.reference == 0 and fresh.transforms[1] is None and fresh.transforms[2] is not None
     # the true placement of robot_2 in robot_1's frame, as an earlier estimation would have found it
@@ -345,3 +377,18 @@ def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
     # another reference means another merged frame: previous placements do not apply
     other = estimate(grids, s, preferred_reference=2, previous=previous)
     assert other.transforms[1] is None
+
+
+def test_correlation_search_places_a_small_overlap_that_descriptors_miss(repo_root):
+    """The lost robot of the test above: its small overlap with robot_3 is found by the correlation search alone,
+    and placed within the demo test's bar (1 degree, 3 cells)."""
+    from multirobot_map_merge.estimation import estimate
+    from multirobot_map_merge.settings import EstimationSettings
+    folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in ('robot_1', 'robot_2', 'robot_3')]
+    found = estimate(grids, EstimationSettings(), preferred_reference=0)
+    assert found.transforms[1] is not None
+    right = tf.inverse(tf.rigid(*starts['robot_1'])) @ tf.rigid(*starts['robot_2'])
+    rot, cells = _corner_error(grids[1], found.transforms[1], right)
+    assert rot < 1.0 and cells < 3.0, (rot, cells)
