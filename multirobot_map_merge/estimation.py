@@ -23,6 +23,7 @@ from .compose import compose
 from .features import FeatureCache, PreparedGrid, prepare
 from .grid import Grid
 from .matching import PairMatch, match_pair, plausible, verify
+from .precision import corner_error
 from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation')
@@ -90,9 +91,9 @@ def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.
                   grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
                   settings: EstimationSettings) -> List[int]:
     """Grids placed before but not now keep their previous placement while they still agree with the placed
-    ones together (the same acceptance rules as a pair). A live map that grew can lose its only match for a while
-    (a new part resembles something else); dropping it from the merged map until then helps no one. Returns the
-    grids kept."""
+    ones together (the acceptance rules of a pair, precision included). A live map that grew can lose its only
+    match for a while (a new part resembles something else); dropping it from the merged map until then helps no
+    one. Returns the grids kept."""
     lost = [k for k, t in enumerate(previous) if t is not None and k not in placed and prepared[k] is not None]
     if not lost:
         return []
@@ -104,7 +105,8 @@ def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.
     kept = []
     for k in lost:
         model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
-        if plausible(verify(prepared[k], context, model, settings), settings):
+        spread = corner_error(prepared[k], context, model, settings.verify_tolerance) * res
+        if plausible(verify(prepared[k], context, model, settings), settings) and spread <= settings.max_corner_error_m:
             kept.append(k)
     for k in kept:
         placed[k] = np.asarray(previous[k], float)
