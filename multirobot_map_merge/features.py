@@ -102,6 +102,12 @@ def free_side_field(work: np.ndarray) -> np.ndarray:
     return np.dstack([cv2.Sobel(free, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(free, cv2.CV_32F, 0, 1, ksize=3)])
 
 
+def opposed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Where two free-side directions point against each other: the walls there were seen from opposite sides."""
+    dot = (a * b).sum(axis=-1)
+    return dot < -0.3 * np.sqrt((a * a).sum(axis=-1) * (b * b).sum(axis=-1)) - 1e-6
+
+
 def feature_image(work: np.ndarray) -> np.ndarray:
     """8-bit image for the detector: free white, unknown grey, occupied black (probabilities shaded)."""
     img = np.full(work.shape, 128, np.uint8)

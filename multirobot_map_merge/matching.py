@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from . import transforms as tf
-from .features import PreparedGrid, free_side_field
+from .features import PreparedGrid, free_side_field, opposed
 from .polish import polish
 from .precision import corner_error
 from .search import correlate_candidates
@@ -177,12 +177,6 @@ def quick_agreement(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: Es
     if on_known.sum() < 20:
         return 0.0
     return float((pj.wall_distance[y[on_known], x[on_known]] <= s.screen_tolerance).mean())
-
-
-def opposed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Where two free-side directions point against each other: the walls there were seen from opposite sides."""
-    dot = (a * b).sum(axis=-1)
-    return dot < -0.3 * np.sqrt((a * a).sum(axis=-1) * (b * b).sum(axis=-1)) - 1e-6
 
 
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:

@@ -16,7 +16,7 @@ from typing import Tuple
 import numpy as np
 
 from . import transforms as tf
-from .features import PreparedGrid
+from .features import PreparedGrid, opposed
 
 INFLATION = 10.0
 MIN_SIGMA = 0.5   # pixels: residuals below half a pixel are rasterisation, not evidence of precision
@@ -33,9 +33,8 @@ def _matched_walls(src: PreparedGrid, dst: PreparedGrid, model: np.ndarray,
     at = np.rint(nearest[close]).astype(np.int64)
     normals = dst.free_side[at[:, 1], at[:, 0]]
     length = np.hypot(normals[:, 0], normals[:, 1])
-    turned = src.wall_normals[close] @ model[:2, :2].T
-    # walls seen from opposite sides are a wall's two faces, not one wall (see matching.opposed)
-    keep = (length > 1e-3) & ((turned * normals).sum(axis=1) >= -0.3 * length * np.hypot(*turned.T))
+    # walls seen from opposite sides are a wall's two faces, not one wall
+    keep = (length > 1e-3) & ~opposed(src.wall_normals[close] @ model[:2, :2].T, normals)
     points, normals = moved[close][keep], normals[keep] / length[keep, None]
     residuals = ((points - nearest[close][keep]) * normals).sum(axis=1)
     return points, normals, residuals
