@@ -105,8 +105,10 @@ def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.
     kept = []
     for k in lost:
         model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
-        spread = corner_error(prepared[k], context, model, settings.verify_tolerance) * res
-        if plausible(verify(prepared[k], context, model, settings), settings) and spread <= settings.max_corner_error_m:
+        if not plausible(verify(prepared[k], context, model, settings), settings):
+            continue
+        # the precision only for a placement that still agrees: it looks up every wall of both
+        if corner_error(prepared[k], context, model, settings.verify_tolerance) * res <= settings.max_corner_error_m:
             kept.append(k)
     for k in kept:
         placed[k] = np.asarray(previous[k], float)
