@@ -265,11 +265,30 @@ def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) 
     return out
 
 
-def distinct(a: Placement, b: Placement, pi: PreparedGrid, s: EstimationSettings) -> bool:
+def distinct(a: np.ndarray, b: np.ndarray, pi: PreparedGrid, s: EstimationSettings) -> bool:
+    """Whether two placements (pixel transforms of grid i) are different places, not two estimates of one."""
     h, w = pi.work.shape
     corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
-    rot, disp = tf.difference(a.transform, b.transform, corners)
+    rot, disp = tf.difference(a, b, corners)
     return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
+
+
+def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: EstimationSettings) -> Optional[Placement]:
+    """Another place for grid i on grid j that passes the agreement rules as well as `best` does, however much
+    smaller its common area: a map that fits wholly into one of several identical rooms also fits, with less
+    overlap, where it really belongs (the dev set's simple_rooms_1). Searched by correlation away from `best`."""
+    rng = np.random.default_rng(s.seed)
+    models = correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees, peaks_per_angle=4,
+                                  keep=s.rival_search_keep, penalty=s.search_penalty,
+                                  free_reward=s.search_free_reward,
+                                  wanted=lambda model: distinct(model, best.transform, pi, s))
+    for model in models:
+        if quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
+            continue
+        c = verify(pi, pj, icp(pi, pj, model, s, rng), s)
+        if plausible(c, s) and distinct(c.transform, best.transform, pi, s):
+            return c
+    return None
 
 
 def pair_confidence(inliers: int, matches: int) -> float:
@@ -343,7 +362,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     if plausible(best, s):
         best.corner_error_m = corner_error(pi, pj, best.transform, s.verify_tolerance) * pi.resolution
     best_score = best.score(s.conflict_weight)
-    rival = next((c for c in candidates[1:] if distinct(c, best, pi, s) and plausible(c, s)
+    rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
     if best.agreement < s.min_agreement:
         result.reason = f'agreement {best.agreement:.2f} < {s.min_agreement:.2f}'

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import List, Tuple
+from typing import Callable, List, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -80,8 +80,10 @@ def _fft_shape(h: int, w: int) -> Tuple[int, int]:
 
 def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sweep_degrees: float = 3.0,
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
-                         free_reward: float = FREE_REWARD) -> List[np.ndarray]:
-    """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels."""
+                         free_reward: float = FREE_REWARD,
+                         wanted: Optional[Callable[[np.ndarray], bool]] = None) -> List[np.ndarray]:
+    """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
+    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle."""
     ci, cj = coarse(pi, factor), coarse(pj, factor)
     hi, wi = ci.walls.shape
     hj, wj = cj.walls.shape
@@ -91,6 +93,8 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     foj = np.fft.rfft2(cj.open, shape)
     centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
     found = []
+    k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
+    k_inv = np.linalg.inv(k)
     for angle in rotation_candidates(ci, cj, sweep_degrees):
         c, s = math.cos(angle), math.sin(angle)
         # turn about the centre and put the result in a diag x diag canvas
@@ -108,7 +112,8 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
         ys, xs = np.nonzero(peaks)
         if ys.size == 0:
             continue
-        order = np.argsort(score[ys, xs])[::-1][:peaks_per_angle]
+        order = np.argsort(score[ys, xs])[::-1]
+        taken = 0
         for y, x in zip(ys[order], xs[order]):
             # circular correlation: shifts past half the size are negative
             dy = y - shape[0] if y > shape[0] - diag else y
@@ -116,8 +121,11 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
             t = np.eye(3)
             t[:2] = m
             t[:2, 2] += (dx, dy)
+            if wanted is not None and not wanted(k @ t @ k_inv):
+                continue
             found.append((float(score[y, x]), t))
+            taken += 1
+            if taken >= peaks_per_angle:
+                break
     found.sort(key=lambda st: st[0], reverse=True)
-    k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
-    k_inv = np.linalg.inv(k)
     return [k @ t @ k_inv for _, t in found[:keep]]

@@ -15,6 +15,7 @@ from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.known_poses import InitPose
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline
+from multirobot_map_merge.settings import EstimationSettings
 
 from test_merging_pipeline import placement_error, scenario
 
@@ -199,7 +200,6 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     matching the faces puts the maps a wall's thickness off: the faces neither support nor contradict a placement."""
     from multirobot_map_merge.features import prepare
     from multirobot_map_merge.matching import verify
-    from multirobot_map_merge.settings import EstimationSettings
     world = np.zeros((200, 240), np.int8)
     world[100:106, 20:220] = 100            # a wall 30 cm thick between a room (below) and a corridor (above)
     world[60:140, 18:20] = 100
@@ -226,7 +226,6 @@ def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
     a wall well inside an area the other map saw free contradicts the placement."""
     from multirobot_map_merge.features import prepare
     from multirobot_map_merge.matching import plausible, verify
-    from multirobot_map_merge.settings import EstimationSettings
     room = np.full((200, 240), -1, np.int8)
     room[40:160, 40:200] = 0
     room[40:160, 40] = room[40:160, 199] = room[40, 40:200] = room[159, 40:200] = 100
@@ -253,7 +252,6 @@ def test_few_shared_walls_close_together_leave_the_placement_imprecise():
     from multirobot_map_merge.features import prepare
     from multirobot_map_merge.matching import match_pair, verify
     from multirobot_map_merge.precision import corner_error
-    from multirobot_map_merge.settings import EstimationSettings
     hall = np.full((120, 400), -1, np.int8)
     hall[20:100, 20:380] = 0
     hall[20:100, 20] = hall[20:100, 379] = hall[20, 20:380] = hall[99, 20:380] = 100
@@ -281,6 +279,26 @@ def test_placement_contradicted_inside_both_views_is_not_merged(shared_dir):
     p.feed(grids)
     p.estimate()
     assert sum(t is not None for t in p.transforms) == 1
+
+
+def test_map_fitting_a_repeated_room_and_its_true_place_is_ambiguous(shared_dir):
+    """pair_small_simple_rooms_1: one map saw a room and the corridor crossing at its door, the other a room just
+    like it across the crossing. The first fits into the other's room wall for wall (44 m2 in common), and just as
+    consistently where it really belongs (7 m2 of crossing): the pair is the only link between the maps, so it is
+    refused. Without the search for such a rival the large wrong overlap is merged."""
+    grids, truth = scenario(shared_dir, 'pair_small_simple_rooms_1')
+    p = MergingPipeline()
+    p.feed(grids)
+    result = p.estimate()
+    assert sum(t is not None for t in p.transforms) == 1
+    assert result.pairs[0].reason.startswith('ambiguous')
+
+    p = MergingPipeline(EstimationSettings(rival_search_keep=0))
+    p.feed(grids)
+    p.estimate()
+    assert all(t is not None for t in p.transforms)
+    rot, cells = placement_error(truth, p.transforms, 0, 1)
+    assert rot > 90
 
 
 def test_pair_confidence_counts_verified_correspondences():
@@ -342,7 +360,6 @@ def test_small_thin_walled_overlap_is_placed_precisely(repo_root):
     demo test's bar (1 degree, 3 cells)."""
     from multirobot_map_merge.features import prepare
     from multirobot_map_merge.matching import match_pair
-    from multirobot_map_merge.settings import EstimationSettings
     (g1, g2), true_m = _demo_pair(repo_root)
     p2, p1 = prepare(g2, 0.05, 'akaze'), prepare(g1, 0.05, 'akaze')
     m = match_pair(0, 1, p1, p2, EstimationSettings())
@@ -357,7 +374,6 @@ def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
     by both, a milder penalty), nothing places it: its earlier placement is kept when it still agrees with the
     placed maps, and dropped when it does not."""
     from multirobot_map_merge.estimation import estimate
-    from multirobot_map_merge.settings import EstimationSettings
     folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
     starts = json.loads((folder / 'start_poses.json').read_text())
     names = ['robot_1', 'robot_2', 'robot_3']
@@ -383,7 +399,6 @@ def test_correlation_search_places_a_small_overlap_that_descriptors_miss(repo_ro
     """The lost robot of the test above: its small overlap with robot_3 is found by the correlation search alone,
     and placed within the demo test's bar (1 degree, 3 cells)."""
     from multirobot_map_merge.estimation import estimate
-    from multirobot_map_merge.settings import EstimationSettings
     folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
     starts = json.loads((folder / 'start_poses.json').read_text())
     grids = [load_map(str(folder / f'{n}.yaml')) for n in ('robot_1', 'robot_2', 'robot_3')]
