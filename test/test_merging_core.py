@@ -2,6 +2,7 @@
 legacy cell semantics, heterogeneous resolutions, no-overlap pairs, rotated chains, and the merge_maps CLI."""
 import json
 import math
+import re
 import subprocess
 import sys
 
@@ -299,6 +300,23 @@ def test_map_fitting_a_repeated_room_and_its_true_place_is_ambiguous(shared_dir)
     assert all(t is not None for t in p.transforms)
     rot, cells = placement_error(truth, p.transforms, 0, 1)
     assert rot > 90
+
+
+def test_evidence_report_shows_the_rival_of_an_ambiguous_pair(repo_root, shared_dir):
+    script = repo_root / 'scripts' / 'evidence_report.py'
+    out = subprocess.run([sys.executable, str(script), '--data', str(shared_dir / 'data' / 'dev'),
+                          '--only', 'pair_small_simple_rooms_1'], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    lines = dict(line.strip().split(':', 1) for line in out.stdout.splitlines()[1:])
+    def agreeing(line):
+        return int(re.search(r'(\d+) agreeing', line).group(1))
+    # the room across the corridor, turned round, fits with more agreeing walls than the true place
+    assert float(lines['rival'].split()[0]) > 170
+    assert agreeing(lines['rival']) > agreeing(lines['truth']) > 0
+    assert lines['pipeline'].strip().startswith('ambiguous')
+    bad = subprocess.run([sys.executable, str(script), '--data', str(shared_dir), '--only', 'nothing'],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
 
 
 def test_pair_confidence_counts_verified_correspondences():
