@@ -22,7 +22,7 @@ from . import transforms as tf
 from .compose import compose
 from .features import FeatureCache, PreparedGrid, prepare
 from .grid import Grid
-from .matching import PairMatch, find_rival, match_pair, plausible, verify
+from .matching import PairMatch, match_pair, plausible, verify
 from .precision import corner_error
 from .settings import EstimationSettings
 
@@ -68,30 +68,6 @@ def match_all(prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSe
             if m.accepted:
                 groups.union(*ij)
     return [results[ij] for ij in jobs]
-
-
-def refuse_ambiguous_bridges(graph: nx.Graph, prepared: Sequence[Optional[PreparedGrid]],
-                             settings: EstimationSettings, pool: ThreadPoolExecutor) -> None:
-    """Refuse accepted pairs that alone join two groups of grids (bridges of the graph of accepted pairs) when
-    another placement of the pair passes the same rules (matching.find_rival). Such a pair is the only evidence for
-    where one group goes; a pair on a cycle has others that place the same grids."""
-    if settings.rival_search_keep <= 0:
-        return
-    checked = set()
-    while True:
-        todo = [e for e in (tuple(sorted(e)) for e in nx.bridges(graph)) if e not in checked]
-        if not todo:
-            return
-        checked.update(todo)
-        matches = [graph.edges[e]['match'] for e in todo]
-        rivals = pool.map(lambda m: find_rival(prepared[m.i], prepared[m.j], m.best, settings), matches)
-        for m, rival in zip(matches, rivals):
-            if rival is not None:
-                m.accepted = False
-                m.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
-                            f'{rival.support} vs {m.best.support}')
-                graph.remove_edge(m.i, m.j)
-                log.info('pair %d-%d refused, %s', m.i, m.j, m.reason)
 
 
 def pick_component(graph: nx.Graph, preferred: Optional[int]) -> List[int]:
@@ -152,18 +128,18 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     with ThreadPoolExecutor(max_workers=settings.threads) as pool:
         prepared = list(pool.map(lambda g: cache.get(g, res, settings.feature) if g is not None else None, usable))
         pairs = match_all(prepared, settings, pool)
-        present = [k for k, p in enumerate(prepared) if p is not None]
-        graph = nx.Graph()
-        graph.add_nodes_from(present)
-        for m in pairs:
-            if m.accepted:
-                graph.add_edge(m.i, m.j, weight=m.weight, match=m,
-                               to={(m.i, m.j): m.transform_m, (m.j, m.i): tf.inverse(m.transform_m)})
-        refuse_ambiguous_bridges(graph, prepared, settings, pool)
 
+    present = [k for k, p in enumerate(prepared) if p is not None]
     transforms: List[Optional[np.ndarray]] = [None] * len(grids)
     if not present:
         return Estimate(transforms, None, pairs, seconds=time.perf_counter() - t0)
+
+    graph = nx.Graph()
+    graph.add_nodes_from(present)
+    for m in pairs:
+        if m.accepted:
+            graph.add_edge(m.i, m.j, weight=m.weight, match=m,
+                           to={(m.i, m.j): m.transform_m, (m.j, m.i): tf.inverse(m.transform_m)})
     component = pick_component(graph, preferred_reference)
     tree = nx.maximum_spanning_tree(graph.subgraph(component), weight='weight')
     if preferred_reference in component:

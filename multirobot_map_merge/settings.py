@@ -43,7 +43,6 @@ class EstimationSettings:
     search_penalty: float = PENALTY   # correlation search: cost of a wall on the other's open floor
     search_free_reward: float = FREE_REWARD  # correlation search: reward of floor both maps saw free
     search_keep: int = 8              # correlation search: candidates refined
-    rival_search_keep: int = 40       # candidates refined in the search for a rival placement; 0: no search
     threads: int = 2                  # pairs matched in parallel
     seed: int = 0
 
@@ -59,7 +58,7 @@ class EstimationSettings:
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
         for name in ('deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m', 'search_penalty',
-                     'search_free_reward', 'search_keep', 'rival_search_keep'):
+                     'search_free_reward', 'search_keep'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must not be negative, not {getattr(self, name)}')
         if self.confidence != self.confidence:

@@ -102,9 +102,8 @@ def report(folder: Path, settings: EstimationSettings) -> str:
     fitted = max((best_fit(pi, pj, m) for m in starts), key=lambda m: score(pi, pj, m))
     bf = verify(pi, pj, fitted, settings)
     relaxed = settings.replace(min_support=max(int(0.8 * at.support), 10), min_overlap_m2=0.8 * at.overlap_m2,
-                               min_agreement=min(settings.min_agreement, at.agreement - 0.02),
-                               rival_search_keep=max(settings.rival_search_keep, 60))
-    rival = find_rival(pi, pj, at, relaxed)
+                               min_agreement=min(settings.min_agreement, at.agreement - 0.02))
+    rival = find_rival(pi, pj, at, relaxed, keep=60)
     lines = [f'{folder.name}:',
              f'  truth:    {at.support} agreeing wall cells, agreement {at.agreement:.2f}, '
              f'{at.deep_conflicts} deep contradictions, expected corner error {precision:.2f} m',
