@@ -279,8 +279,8 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     much smaller its common area, searched by correlation away from `best` (`keep` candidates refined).
 
     Not an acceptance rule: small consistent placements are common (a corner of one map fitting a corner of the
-    other), and on the saved maps of 120 live-demo runs such a rival, with 100-177 agreeing wall cells, existed
-    for 9 right placements with 1100-2200. scripts/evidence_report.py uses it to show true ambiguity."""
+    other), and on the saved maps of 199 live-demo runs such a rival, with 100-177 agreeing wall cells, existed
+    for 19 right placements with 153-2175. scripts/evidence_report.py uses it to show true ambiguity."""
     rng = np.random.default_rng(s.seed)
     models = correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees, peaks_per_angle=4,
                                   keep=keep, penalty=s.search_penalty,
