@@ -22,8 +22,7 @@ from . import transforms as tf
 from .compose import compose
 from .features import FeatureCache, PreparedGrid, prepare
 from .grid import Grid
-from .matching import PairMatch, match_pair, plausible, verify
-from .precision import corner_error
+from .matching import PairMatch, match_pair, refusal, verify
 from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation')
@@ -105,10 +104,7 @@ def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.
     kept = []
     for k in lost:
         model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
-        if not plausible(verify(prepared[k], context, model, settings), settings):
-            continue
-        # the precision only for a placement that still agrees: it looks up every wall of both
-        if corner_error(prepared[k], context, model, settings.verify_tolerance) * res <= settings.max_corner_error_m:
+        if not refusal(verify(prepared[k], context, model, settings), prepared[k], context, settings):
             kept.append(k)
     for k in kept:
         placed[k] = np.asarray(previous[k], float)

@@ -246,6 +246,25 @@ def plausible(c: Placement, s: EstimationSettings) -> bool:
             and c.deep_conflicts <= s.max_deep_conflicts * c.support)
 
 
+def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings) -> str:
+    """Why placement c of grid i on grid j fails the pair acceptance rules ('' if it passes): agreement, overlap,
+    support, deep contradictions (as `plausible`), then precision, the costly one, which it stores in c."""
+    if c.agreement < s.min_agreement:
+        return f'agreement {c.agreement:.2f} < {s.min_agreement:.2f}'
+    if c.overlap_m2 < s.min_overlap_m2:
+        return f'overlap {c.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
+    if c.support < s.min_support:
+        return f'support {c.support} < {s.min_support}'
+    if c.deep_conflicts > s.max_deep_conflicts * c.support:
+        return (f'{c.deep_conflicts} contradicting walls well inside both maps, more than '
+                f'{s.max_deep_conflicts:.0%} of {c.support} agreeing')
+    c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance) * pi.resolution
+    if c.corner_error_m > s.max_corner_error_m:
+        return (f'imprecise: the shared walls leave the far corners uncertain by '
+                f'{c.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
+    return ''
+
+
 def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) -> List[np.ndarray]:
     """The best placement turned by 90, 180 and 270 degrees about the middle of the common area.
 
@@ -363,30 +382,16 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.confidence = pair_confidence(result.inliers, result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
 
-    if plausible(best, s):
-        best.corner_error_m = corner_error(pi, pj, best.transform, s.verify_tolerance) * pi.resolution
     best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
-    if best.agreement < s.min_agreement:
-        result.reason = f'agreement {best.agreement:.2f} < {s.min_agreement:.2f}'
-    elif best.overlap_m2 < s.min_overlap_m2:
-        result.reason = f'overlap {best.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
-    elif best.support < s.min_support:
-        result.reason = f'support {best.support} < {s.min_support}'
-    elif best.deep_conflicts > s.max_deep_conflicts * best.support:
-        result.reason = (f'{best.deep_conflicts} contradicting walls well inside both maps, more than '
-                         f'{s.max_deep_conflicts:.0%} of {best.support} agreeing')
-    elif best.corner_error_m > s.max_corner_error_m:
-        result.reason = (f'imprecise: the shared walls leave the far corners uncertain by '
-                         f'{best.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
-    elif rival is not None:
+    result.reason = refusal(best, pi, pj, s)
+    if not result.reason and rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
-    elif result.confidence < s.confidence:
+    if not result.reason and result.confidence < s.confidence:
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
-    else:
-        result.accepted = True
+    result.accepted = not result.reason
     log.debug('pair %d-%d: %d descriptor matches (%d inliers), %d wall correspondences (%d inliers), confidence '
               '%.3f, agreement %.3f, overlap %.1f m2, %s', i, j, result.descriptor_matches, result.descriptor_inliers,
               result.matches, result.inliers, result.confidence, best.agreement, best.overlap_m2,
