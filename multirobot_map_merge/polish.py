@@ -14,7 +14,7 @@ acceptance stays with the matcher's verification.
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Callable, Tuple
 
 import numpy as np
 
@@ -72,17 +72,19 @@ def polish(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, rng: np.random
                          [s, c, centre[1] - s * centre[0] - c * centre[1] + p[2]], [0.0, 0.0, 1.0]])
         return step @ model
 
-    return moved(_descend(cost, moved))
+    return moved(descend(cost, moved))
 
 
-def _descend(cost, moved) -> np.ndarray:
-    """Pattern search from the zero step: the step (rotation, x, y) with the lowest cost."""
+def descend(cost: Callable[[np.ndarray], float], moved: Callable[[np.ndarray], np.ndarray],
+            first_steps: Tuple[float, float] = FIRST_STEPS, max_moves: int = MAX_MOVES) -> np.ndarray:
+    """Pattern search from the zero step: the step (rotation, x, y) with the lowest cost, starting with
+    `first_steps` (radians, pixels) and halving them until the translation step is below LAST_STEP."""
     best = cost(moved(np.zeros(3)))
     p = np.zeros(3)
     if not math.isfinite(best):
         return p
-    steps = np.array([FIRST_STEPS[0], FIRST_STEPS[1], FIRST_STEPS[1]])
-    for _ in range(MAX_MOVES):
+    steps = np.array([first_steps[0], first_steps[1], first_steps[1]])
+    for _ in range(max_moves):
         for k in range(3):
             for sign in (1.0, -1.0):
                 q = p.copy()

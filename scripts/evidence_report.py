@@ -31,6 +31,7 @@ from multirobot_map_merge.features import PreparedGrid, opposed, prepare  # noqa
 from multirobot_map_merge.mapio import load_map  # noqa: E402
 from multirobot_map_merge.estimation import estimate  # noqa: E402
 from multirobot_map_merge.matching import find_rival, verify  # noqa: E402
+from multirobot_map_merge.polish import descend  # noqa: E402
 from multirobot_map_merge.precision import corner_error  # noqa: E402
 from multirobot_map_merge.settings import EstimationSettings  # noqa: E402
 
@@ -67,16 +68,7 @@ def best_fit(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray) -> np.ndarra
     grid = [(math.radians(a), x, y) for a in np.arange(-3.0, 3.01, 0.25)
             for x in range(-12, 13, 2) for y in range(-12, 13, 2)]
     p = np.array(max(grid, key=lambda q: score(pi, pj, moved(q))))
-    value, steps = score(pi, pj, moved(p)), np.array([math.radians(0.125), 1.0, 1.0])
-    while steps[1] >= 0.1:
-        for k, sign in ((k, sign) for k in range(3) for sign in (1, -1)):
-            q = p.copy()
-            q[k] += sign * steps[k]
-            if score(pi, pj, moved(q)) > value + 1e-9:
-                p, value = q, score(pi, pj, moved(q))
-                break
-        else:
-            steps /= 2.0
+    p += descend(lambda m: -score(pi, pj, m), lambda q: moved(p + q), (math.radians(0.125), 1.0), max_moves=200)
     return moved(p)
 
 
