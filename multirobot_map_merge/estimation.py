@@ -1,41 +1,52 @@
-"""Stage 3 of estimation: from pairwise matches to one metric transform per grid.
+"""Stage 3 of estimation: grow groups of placed grids, matching every newcomer against the union of a group.
 
-Accepted pairs form a graph; its largest connected component is merged. A maximum spanning tree (weight = the
-pair's agreeing wall pixels) is walked from the reference grid, composing transforms in the right order:
-T_child = T_parent @ H(child -> parent). (The C++ node composes in the reverse order, which misplaces grids two
-or more hops from the reference.) Accepted pairs outside the tree are checked against it and reported.
+A group starts from a seed (the preferred reference, else the grid with the largest known area) and grows in
+rounds. In a round every grid not placed yet is matched against the union of the group (union.py) by descriptors
+only, cheap and in parallel; the accepted ones join, and the next round matches the rest against the grown union.
+A round that adds nobody runs the costly correlation search, on the remaining grids smallest first, each only if
+the union has grown enough since it last searched it. Grids that join no group seed the next group; groups are
+matched against each other (union against union), and the largest group is the merge. So a grid whose overlap with
+every single map is too small, but with the union large, joins; and each newcomer costs one match against the
+union, not one per placed map.
+
+Tracking (tracking.py): with the transforms of the last estimate (`previous`, same reference), the grids placed
+then are re-checked first; those that still hold form the first group, which the others then join as above.
 """
 from __future__ import annotations
 
 import logging
-import math
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from itertools import combinations
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
-import networkx as nx
 import numpy as np
 
 from . import transforms as tf
-from .compose import compose
-from .features import FeatureCache, PreparedGrid, prepare
+from .features import FeatureCache, PreparedGrid
 from .grid import Grid
-from .matching import PairMatch, match_pair, refusal, verify
+from .matching import PairMatch, match_pair, overlap_found
 from .settings import EstimationSettings
+from .tracking import track
+from .union import UnionMap
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation')
+
+SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
+
+Progress = Callable[[int, int], None]   # (grids settled, grids in all), called as the estimation goes
 
 
 @dataclass
 class Estimate:
-    """transforms[k]: metric map frame of grid k -> merged frame (the reference grid's map frame); None = excluded."""
+    """transforms[k]: metric map frame of grid k -> merged frame (the reference grid's map frame); None = excluded.
+    pairs: how each placed grid was placed (j: the placed grid it overlaps most) and the last refused match of
+    every grid left out."""
     transforms: List[Optional[np.ndarray]]
     reference: Optional[int]
     pairs: List[PairMatch] = field(default_factory=list)
-    inconsistent: List[PairMatch] = field(default_factory=list)
     seconds: float = 0.0
+    tracked: int = 0   # grids whose previous placement was confirmed (tracking)
 
 
 def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSettings) -> float:
@@ -44,128 +55,211 @@ def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSett
     return max(min(res), settings.min_work_resolution) if res else settings.min_work_resolution
 
 
-def match_all(prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSettings,
-              pool: ThreadPoolExecutor) -> List[PairMatch]:
-    """Match every pair by descriptors, then search (costly) only pairs that would join unconnected groups."""
-    jobs = [(i, j) for i, j in combinations(range(len(prepared)), 2)
-            if prepared[i] is not None and prepared[j] is not None]
-    results = dict(zip(jobs, pool.map(
-        lambda ij: match_pair(ij[0], ij[1], prepared[ij[0]], prepared[ij[1]], settings, search=False), jobs)))
-    groups = nx.utils.UnionFind(range(len(prepared)))
-    for (i, j), m in results.items():
-        if m.accepted:
-            groups.union(i, j)
-    pending = [ij for ij, m in results.items() if not m.accepted]
-    while pending:
-        batch = [ij for ij in pending if groups[ij[0]] != groups[ij[1]]][:settings.threads]
-        if not batch:
-            break
-        pending = [ij for ij in pending if ij not in batch]
-        for ij, m in zip(batch, pool.map(
-                lambda ij: match_pair(ij[0], ij[1], prepared[ij[0]], prepared[ij[1]], settings), batch)):
-            results[ij] = m
+class Group:
+    """Grids placed together: grid index -> metric transform into the frame of the seed grid."""
+
+    def __init__(self, seed: int, grid: Grid, prepared: PreparedGrid, res: float):
+        self.seed = seed
+        self.union = UnionMap(res)
+        self.union.add(seed, grid, prepared, np.eye(3))
+        self.links: Dict[int, PairMatch] = {}   # how each member but the seed joined
+
+    @property
+    def members(self) -> Dict[int, np.ndarray]:
+        return self.union.members
+
+    def join(self, k: int, grid: Grid, prepared: PreparedGrid, m: PairMatch) -> None:
+        """Grid k joins, placed by m (metric: map k -> the group's frame)."""
+        self.union.add(k, grid, prepared, m.transform_m)
+        self.links[k] = self.paired(m, k)
+
+    def absorb(self, other: 'Group', other_to_self: np.ndarray, m: PairMatch) -> None:
+        """Every member of another group joins, placed by `other_to_self` (metric: its frame -> this frame), as
+        the match m of the two unions found."""
+        self.union.absorb(other.union, other_to_self)
+        self.links.update(other.links)
+        self.links[other.seed] = self.paired(m, other.seed)
+
+    def paired(self, m: PairMatch, k: int) -> PairMatch:
+        """m (member k placed onto the union) restated as a pair of k and the member it overlaps most."""
+        anchor = self.union.anchor(k)
+        out = PairMatch(k, anchor, m.matches, m.inliers, m.confidence, m.descriptor_matches, m.descriptor_inliers,
+                        m.accepted, m.reason, m.best)
+        out.transform_m = tf.inverse(self.members[anchor]) @ self.members[k]
+        return out
+
+
+class Grower:
+    """Grows groups over one estimation; owns the bookkeeping of which grid was tried against which union."""
+
+    def __init__(self, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
+                 settings: EstimationSettings, pool: Executor, reference: Optional[int],
+                 progress: Optional[Progress]):
+        self.grids, self.prepared, self.res, self.s, self.pool = grids, prepared, res, settings, pool
+        self.reference = reference
+        self.progress = progress
+        self.total = sum(p is not None for p in prepared)
+        self.tried: Dict[tuple, int] = {}       # (grid, group id) -> union version of the last descriptor match
+        self.searched: Dict[tuple, int] = {}    # (grid, group id) -> union known pixels at the last search
+        self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
+        self.contradicting: set = set()          # grids that overlap a group's union but contradict it
+        self.settled = 0
+
+    def match(self, k: int, group: Group, search: bool) -> PairMatch:
+        """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
+        one is matched as a pair."""
+        return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
+                          onto_union=len(group.members) > 1, descriptors=not search)
+
+    def grow(self, group: Group, unplaced: List[int]) -> None:
+        """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union."""
+        while unplaced:
+            batch = [k for k in unplaced if self.tried.get((k, id(group))) != group.union.version]
+            if batch:
+                group.union.prepared()   # once, before the workers share it
+                for k in batch:
+                    self.tried[(k, id(group))] = group.union.version
+                results = list(self.pool.map(lambda k: self.match(k, group, search=False), batch))
+                if self._admit(group, unplaced, results):
+                    continue
+            if not self._search(group, unplaced):
+                return
+
+    def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
+        added = False
+        for m in sorted(results, key=lambda m: -m.weight):
             if m.accepted:
-                groups.union(*ij)
-    return [results[ij] for ij in jobs]
+                group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
+                unplaced.remove(m.i)
+                self.refused.pop(m.i, None)
+                self._settle(1)
+                added = True
+            else:
+                self.refused[m.i] = m
+                if len(group.members) > 1 and m.best is not None and m.best.support >= self.s.min_support \
+                        and m.best.overlap_m2 >= self.s.min_overlap_m2:
+                    self.contradicting.add(m.i)
+        return added
 
+    def _search(self, group: Group, unplaced: List[int]) -> bool:
+        """The correlation search, smallest grid first, on grids the union has grown for since their last search;
+        stops at the first grid it places (the others are matched against the grown union first)."""
+        known = group.union.known_pixels
+        for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
+            last = self.searched.get((k, id(group)))
+            if last is not None and known < SEARCH_GROWTH * last:
+                continue
+            refused = self.refused.get(k)
+            if refused is not None and refused.j == group.seed \
+                    and overlap_found(refused.best, self.s, len(group.members) > 1):
+                continue   # the descriptors found the overlap and the maps disagree there
+            self.searched[(k, id(group))] = known
+            m = self.match(k, group, search=True)
+            if self._admit(group, unplaced, [m]):
+                return True
+        return False
 
-def pick_component(graph: nx.Graph, preferred: Optional[int]) -> List[int]:
-    components = sorted((sorted(c) for c in nx.connected_components(graph)), key=lambda c: (-len(c), c[0]))
-    largest = [c for c in components if len(c) == len(components[0])]
-    for comp in largest:
-        if preferred in comp:
-            return comp
-    return largest[0]
+    def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
+        """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
+        grows again with the grids still unplaced."""
+        changed = True
+        while changed and len(groups) > 1:
+            changed = False
+            groups.sort(key=lambda g: -len(g.members))
+            for a in range(len(groups)):
+                for b in range(a + 1, len(groups)):
+                    big, small = groups[a], groups[b]
+                    if len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version:
+                        continue   # a single grid was matched against this union already
+                    m = self._match_groups(small, big)
+                    if m.accepted:
+                        # the merged frame stays that of the preferred reference's group
+                        if self.reference in small.members:
+                            small.absorb(big, tf.inverse(m.transform_m), m)
+                            groups[a] = small
+                        else:
+                            big.absorb(small, m.transform_m, m)
+                        groups.pop(b)
+                        self.grow(groups[a], unplaced)
+                        changed = True
+                        break
+                if changed:
+                    break
+        return groups
 
+    def _match_groups(self, small: Group, big: Group) -> PairMatch:
+        self.tried[(small.seed, id(big))] = big.union.version
+        return match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
+                          onto_union=len(big.members) > 1)
 
-def tree_transforms(tree: nx.Graph, reference: int) -> Dict[int, np.ndarray]:
-    """Compose along the tree from the reference: T[k] maps map k into the reference's map frame."""
-    out = {reference: np.eye(3)}
-    for parent, child in nx.bfs_edges(tree, reference):
-        out[child] = out[parent] @ tree.edges[parent, child]['to'][(child, parent)]
-    return out
-
-
-def keep_previous(placed: Dict[int, np.ndarray], previous: Sequence[Optional[np.ndarray]],
-                  grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
-                  settings: EstimationSettings) -> List[int]:
-    """Grids placed before but not now keep their previous placement while they still agree with the placed
-    ones together (the acceptance rules of a pair, precision included). A live map that grew can lose its only
-    match for a while (a new part resembles something else); dropping it from the merged map until then helps no
-    one. Returns the grids kept."""
-    lost = [k for k, t in enumerate(previous) if t is not None and k not in placed and prepared[k] is not None]
-    if not lost:
-        return []
-    others = compose([g if k in placed else None for k, g in enumerate(grids)],
-                     [placed.get(k) for k in range(len(grids))])
-    context = prepare(others, res, None) if others is not None else None
-    if context is None:
-        return []
-    kept = []
-    for k in lost:
-        model = tf.inverse(context.px_to_map) @ previous[k] @ prepared[k].px_to_map
-        if not refusal(verify(prepared[k], context, model, settings), prepared[k], context, settings):
-            kept.append(k)
-    for k in kept:
-        placed[k] = np.asarray(previous[k], float)
-    return kept
+    def _settle(self, n: int) -> None:
+        self.settled += n
+        if self.progress is not None:
+            self.progress(min(self.settled, self.total), self.total)
 
 
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
              preferred_reference: Optional[int] = None,
-             previous: Optional[Sequence[Optional[np.ndarray]]] = None) -> Estimate:
-    """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform, unless `previous`
-    (the last estimate's transforms, same grid order) placed them and they still agree (see keep_previous)."""
+             previous: Optional[Sequence[Optional[np.ndarray]]] = None,
+             progress: Optional[Progress] = None) -> Estimate:
+    """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
+    (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
+    (tracking.py) and only the other grids are searched."""
     settings.validate()
     t0 = time.perf_counter()
     cache = cache or FeatureCache()
     res = working_resolution(grids, settings)
     usable = [g if g is not None and not g.is_empty() else None for g in grids]
+    transforms: List[Optional[np.ndarray]] = [None] * len(grids)
     with ThreadPoolExecutor(max_workers=settings.threads) as pool:
         prepared = list(pool.map(lambda g: cache.get(g, res, settings.feature) if g is not None else None, usable))
-        pairs = match_all(prepared, settings, pool)
+        present = [k for k, p in enumerate(prepared) if p is not None]
+        if not present:
+            return Estimate(transforms, None, seconds=time.perf_counter() - t0)
+        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress)
+        groups: List[Group] = []
+        checks = []
+        if preferred_reference in present and previous is not None and len(previous) == len(grids) \
+                and previous[preferred_reference] is not None \
+                and np.allclose(previous[preferred_reference], np.eye(3)):
+            kept, checks = track(previous, preferred_reference, usable, prepared, res, settings, pool)
+            if kept:
+                first = Group(preferred_reference, usable[preferred_reference], prepared[preferred_reference], res)
+                by_grid = {c.k: c for c in checks}
+                for k, t in kept.items():
+                    if k != preferred_reference:
+                        first.union.add(k, usable[k], prepared[k], t)
+                        first.links[k] = by_grid[k].match
+                groups.append(first)
+                grower._settle(len(first.members))
+        tracked = len(groups[0].members) - 1 if groups else 0
+        placed = {k for g in groups for k in g.members}
+        unplaced = sorted((k for k in present if k not in placed), key=lambda k: -prepared[k].known_pixels)
+        if groups:
+            grower.grow(groups[0], unplaced)
+        while unplaced:
+            if groups and 2 * len(groups[0].members) > len(present):
+                # the first group will be the merge: a grid that overlaps it but contradicts it cannot join it,
+                # whatever group it would form with others (a map broken by a SLAM failure): set it aside
+                unplaced[:] = [k for k in unplaced if k not in grower.contradicting]
+                if not unplaced:
+                    break
+            seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
+            unplaced.remove(seed)
+            grower._settle(1)
+            group = Group(seed, usable[seed], prepared[seed], res)
+            grower.grow(group, unplaced)
+            groups.append(group)
+        groups = grower.merge_groups(groups, unplaced)
 
-    present = [k for k, p in enumerate(prepared) if p is not None]
-    transforms: List[Optional[np.ndarray]] = [None] * len(grids)
-    if not present:
-        return Estimate(transforms, None, pairs, seconds=time.perf_counter() - t0)
-
-    graph = nx.Graph()
-    graph.add_nodes_from(present)
-    for m in pairs:
-        if m.accepted:
-            graph.add_edge(m.i, m.j, weight=m.weight, match=m,
-                           to={(m.i, m.j): m.transform_m, (m.j, m.i): tf.inverse(m.transform_m)})
-    component = pick_component(graph, preferred_reference)
-    tree = nx.maximum_spanning_tree(graph.subgraph(component), weight='weight')
-    if preferred_reference in component:
-        reference = preferred_reference
-    else:
-        reference = min(nx.center(tree)) if len(component) > 1 else component[0]
-    placed = tree_transforms(tree, reference)
-    if previous is not None and reference == preferred_reference and len(previous) == len(grids) \
-            and previous[reference] is not None and np.allclose(previous[reference], np.eye(3)):
-        # same reference, so the same merged frame
-        kept = keep_previous(placed, previous, usable, prepared, res, settings)
-        if kept:
-            log.info('kept the previous placement of grid(s) %s: no pair places them now, but they still agree '
-                     'with the placed grids', ', '.join(map(str, kept)))
-    for k, t in placed.items():
+    chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+    # the merged frame is the frame of the chosen group's seed
+    for k, t in chosen.members.items():
         transforms[k] = t
-
-    inconsistent = []
-    for a, b, data in graph.subgraph(component).edges(data=True):
-        if tree.has_edge(a, b):
-            continue
-        m: PairMatch = data['match']
-        predicted = tf.inverse(placed[m.j]) @ placed[m.i]
-        h, w = prepared[m.i].work.shape
-        corners = tf.apply(prepared[m.i].px_to_map, np.array([[0, 0], [w, 0], [0, h], [w, h]], float))
-        rot, disp = tf.difference(predicted, m.transform_m, corners)
-        if rot > math.radians(settings.distinct_degrees) or disp > settings.distinct_metres:
-            inconsistent.append(m)
-            log.debug('pair %d-%d disagrees with the tree by %.1f deg, %.2f m', m.i, m.j, math.degrees(rot), disp)
+    pairs = list(chosen.links.values()) + [m for k, m in grower.refused.items() if k not in chosen.members]
+    pairs += [c.match for c in checks if c.transform is None and c.k not in chosen.members
+              and c.k not in grower.refused]
     seconds = time.perf_counter() - t0
-    log.debug('estimated %d grids: %d placed around grid %d, %d accepted pairs (%d off the tree disagree), %.2f s',
-              len(grids), len(component), reference, graph.number_of_edges(), len(inconsistent), seconds)
-    return Estimate(transforms, reference, pairs, inconsistent, seconds)
+    log.debug('estimated %d grids: %d placed around grid %d (%d kept from the last estimate), %d groups, %.2f s',
+              len(grids), len(chosen.members), chosen.seed, tracked, len(groups), seconds)
+    return Estimate(transforms, chosen.seed, pairs, seconds, tracked)

@@ -16,6 +16,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from . import transforms as tf
 from .grid import Grid
 
 log = logging.getLogger('rosout.multirobot_map_merge.features')
@@ -190,3 +191,33 @@ class FeatureCache:
             while len(self._items) > self._capacity:
                 self._items.popitem(last=False)
         return prepared
+
+
+
+def pooled_keypoints(parts, px_to_map: np.ndarray, shape, radius: float = 3.0):
+    """Keypoints and descriptors of a union image, pooled from those of the grids it is composed of.
+
+    `parts` are (PreparedGrid, metric transform of its map frame into the union's map frame). Each part's keypoints
+    are brought into the union's pixels (rotation-invariant descriptors stay valid); a keypoint within `radius`
+    pixels of one already taken is the same corner seen again and left out, so that the ratio test still finds
+    one nearest neighbour per corner. No detection runs: the union's keypoints grow with its members."""
+    h, w = shape
+    taken = np.zeros((h // int(radius) + 1, w // int(radius) + 1), bool)
+    points, descriptors = [], []
+    to_px = np.linalg.inv(px_to_map)
+    for p, t in parts:
+        if p.descriptors is None or not len(p.keypoints):
+            continue
+        pts = tf.apply(to_px @ t @ p.px_to_map, p.keypoints)
+        inside = (pts[:, 0] >= 0) & (pts[:, 1] >= 0) & (pts[:, 0] < w) & (pts[:, 1] < h)
+        cells = (pts[inside] // radius).astype(np.int64)
+        fresh = ~taken[cells[:, 1], cells[:, 0]]
+        # a part's own keypoints closer than radius to each other all stay: they are distinct in that part
+        taken[cells[fresh, 1], cells[fresh, 0]] = True
+        idx = np.flatnonzero(inside)[fresh]
+        points.append(pts[idx])
+        descriptors.append(p.descriptors[idx])
+    if not points:
+        return np.zeros((0, 2)), None
+    return np.vstack(points), np.vstack(descriptors)
+

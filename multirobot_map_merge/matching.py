@@ -26,6 +26,9 @@ from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.matching')
 
+FOUND_AGREEMENT = 0.6   # see overlap_found
+POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished, the best kept
+
 
 @dataclass
 class Placement:
@@ -68,14 +71,16 @@ class PairMatch:
         return float(self.best.support) if self.best is not None else 0.0
 
 
-def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float) -> np.ndarray:
-    """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction."""
+def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True) -> np.ndarray:
+    """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction (or only from
+    i to j: j is a union, most of whose keypoints are nowhere in i)."""
     if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
     norm = cv2.NORM_HAMMING if pi.descriptors.dtype == np.uint8 else cv2.NORM_L2
     matcher = cv2.BFMatcher(norm)
     found = set()
-    for query, train, swapped in ((pi.descriptors, pj.descriptors, False), (pj.descriptors, pi.descriptors, True)):
+    directions = ((pi.descriptors, pj.descriptors, False), (pj.descriptors, pi.descriptors, True))
+    for query, train, swapped in directions[:2 if both_ways else 1]:
         for pair in matcher.knnMatch(query, train, k=2):
             if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance:
                 a, b = pair[0].queryIdx, pair[0].trainIdx
@@ -246,9 +251,10 @@ def plausible(c: Placement, s: EstimationSettings) -> bool:
             and c.deep_conflicts <= s.max_deep_conflicts * c.support)
 
 
-def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings) -> str:
+def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings, onto_union: bool = False) -> str:
     """Why placement c of grid i on grid j fails the pair acceptance rules ('' if it passes): agreement, overlap,
-    support, deep contradictions (as `plausible`), then precision, the costly one, which it stores in c."""
+    support, deep contradictions (as `plausible`), then precision, the costly one, which it stores in c. With
+    `onto_union`, j is the union of a placed group: precision counts at grid i's corners only (the union stays)."""
     if c.agreement < s.min_agreement:
         return f'agreement {c.agreement:.2f} < {s.min_agreement:.2f}'
     if c.overlap_m2 < s.min_overlap_m2:
@@ -258,7 +264,7 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
     if c.deep_conflicts > s.max_deep_conflicts * c.support:
         return (f'{c.deep_conflicts} contradicting walls well inside both maps, more than '
                 f'{s.max_deep_conflicts:.0%} of {c.support} agreeing')
-    c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance) * pi.resolution
+    c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
     if c.corner_error_m > s.max_corner_error_m:
         return (f'imprecise: the shared walls leave the far corners uncertain by '
                 f'{c.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
@@ -314,6 +320,17 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     return None
 
 
+def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: bool = False) -> bool:
+    """Whether a placement shows the maps' overlap although it fails the rules: it agrees except for contradictions
+    inside both views (a map broken by a SLAM failure), or, onto a union, it has twice the support a pair needs
+    and agrees mostly (a broken map fits the union in part). Then a search would find the same placement."""
+    if c is None:
+        return False
+    return (plausible(c, s.replace(max_deep_conflicts=math.inf))
+            or (onto_union and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2
+                and c.agreement >= FOUND_AGREEMENT))
+
+
 def pair_confidence(inliers: int, matches: int) -> float:
     """The original's confidence, inliers / (8 + 0.3 matches) (Brown & Lowe), here on verified correspondences.
 
@@ -326,11 +343,13 @@ def pair_confidence(inliers: int, matches: int) -> float:
 
 
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
-               search: bool = True) -> PairMatch:
+               search: bool = True, onto_union: bool = False, descriptors: bool = True) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
 
     With search=False, only descriptor matches propose placements (cheap); otherwise a correlation search adds
-    candidates when they found no plausible one.
+    candidates when they found no plausible one. With descriptors=False, only the search does (the caller has
+    matched descriptors already and found nothing plausible). With `onto_union`, j is the union of a placed group
+    (see refusal).
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
@@ -343,7 +362,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     def refine_all(models, screen: bool = True) -> List[Placement]:
         return [c for c in (refine(m, screen) for m in models) if c is not None]
 
-    pairs = putative_matches(pi, pj, s.ratio)
+    pairs = putative_matches(pi, pj, s.ratio, not onto_union) if descriptors else np.zeros((0, 2), np.int64)
     result.descriptor_matches = len(pairs)
     p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
 
@@ -353,10 +372,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
 
     candidates = refine_all(hypotheses(p, q, s, rng))
     best = max(candidates, key=rank, default=None)
-    contradicted = best is not None and plausible(best, s.replace(max_deep_conflicts=math.inf))
-    if search and (best is None or not plausible(best, s)) and not contradicted:
+    if search and (best is None or not plausible(best, s)) and not overlap_found(best, s, onto_union):
         # too few good descriptor matches (small overlaps): search placements by correlation instead;
-        # not when the maps agree but contradict inside both views (a broken map): a search finds the same
+        # not when the overlap was found and the maps contradict there (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,
                                                       keep=s.search_keep, penalty=s.search_penalty,
                                                       free_reward=s.search_free_reward))
@@ -369,9 +387,13 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # unscreened: a turned placement is far off until ICP pulls it in
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
     candidates.sort(key=rank, reverse=True)
-    if plausible(candidates[0], s) and candidates[0].support < s.polish_below_support:
-        # ICP is precise on a large common area (there the polish measured worse), not always on a small one
-        polished = verify(pi, pj, polish(pi, pj, candidates[0].transform, rng), s)
+    if plausible(candidates[0], s) and (candidates[0].support < s.polish_below_support
+                                        or candidates[0].overlap_m2 < s.polish_below_overlap_m2):
+        # ICP is precise on a large common area (there the polish measured worse), not always on a small one; the
+        # other plausible estimates of the same place are polished too, and the most consistent result is kept
+        same = [c.transform for c in candidates[1:] if plausible(c, s)
+                and not distinct(c.transform, candidates[0].transform, pi, s)][:POLISH_STARTS - 1]
+        polished = verify(pi, pj, polish(pi, pj, [candidates[0].transform] + same, rng), s)
         candidates[0] = polished if plausible(polished, s) else candidates[0]
     best = candidates[0]
     result.best = best
@@ -385,7 +407,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
-    result.reason = refusal(best, pi, pj, s)
+    result.reason = refusal(best, pi, pj, s, onto_union)
     if not result.reason and rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')

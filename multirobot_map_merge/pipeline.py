@@ -18,7 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .compose import compose
-from .estimation import Estimate, estimate
+from .estimation import Estimate, Progress, estimate
 from .features import FeatureCache
 from .grid import Grid
 from .known_poses import InitPose, transforms_from_poses
@@ -47,12 +47,14 @@ class MergingPipeline:
         self.grids = grids
 
     def estimate(self, preferred_reference: Optional[int] = None,
-                 previous: Optional[Sequence[Optional[np.ndarray]]] = None) -> Estimate:
+                 previous: Optional[Sequence[Optional[np.ndarray]]] = None,
+                 progress: Optional[Progress] = None) -> Estimate:
         """Estimate transforms from the grids' content (unknown initial poses); `previous` (transforms of the
-        current grids from the last estimate) keeps grids placed that no pair places now but still agree."""
+        current grids from the last estimate, same reference) are kept while they still hold (tracking.py);
+        `progress(settled, total)` is called as grids are placed or set aside."""
         if preferred_reference is None:
             preferred_reference = self.reference
-        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous)
+        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress)
         self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
         return result
 

@@ -11,7 +11,7 @@ about ten times the formal figure.
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Optional, Tuple
 
 import numpy as np
 
@@ -40,29 +40,41 @@ def _matched_walls(src: PreparedGrid, dst: PreparedGrid, model: np.ndarray,
     return points, normals, residuals
 
 
-def corner_error(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, tolerance: float) -> float:
-    """Expected error (pixels of j) at the farthest corner of either grid for the placement `model` (pixels i ->
-    pixels j): INFLATION times the formal standard deviation. inf when too few walls agree to tell."""
+def covariance(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray,
+               tolerance: float) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """Formal covariance of (x, y, angle) of the placement `model` (pixels i -> pixels j) about the centre of the
+    walls that constrain it, and that centre (pixels of j); None when too few walls agree to tell."""
     p1, n1, r1 = _matched_walls(pi, pj, model, tolerance)
     p2, n2, r2 = _matched_walls(pj, pi, tf.inverse(model), tolerance)
     # j's walls matched in i's frame: bring them into j's frame
     p2, n2 = tf.apply(model, p2), n2 @ model[:2, :2].T
     points, normals, residuals = np.vstack([p1, p2]), np.vstack([n1, n2]), np.concatenate([r1, r2])
     if len(points) < MIN_PAIRS:
-        return math.inf
+        return None
     centre = points.mean(axis=0)
     rel = points - centre
     rows = np.column_stack([normals, rel[:, 0] * normals[:, 1] - rel[:, 1] * normals[:, 0]])
     info = rows.T @ rows
     if np.linalg.cond(info) > 1e12:
-        return math.inf
+        return None
     sigma2 = max(float((residuals ** 2).mean()), MIN_SIGMA ** 2)
-    cov = sigma2 * np.linalg.inv(info)
+    return sigma2 * np.linalg.inv(info), centre
+
+
+def corner_error(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, tolerance: float,
+                 moving_only: bool = False) -> float:
+    """Expected error (pixels of j) at the farthest corner of either grid for the placement `model` (pixels i ->
+    pixels j): INFLATION times the formal standard deviation. inf when too few walls agree to tell. With
+    `moving_only` (j is the union of a placed group, which does not move), at the corners of grid i only."""
+    found = covariance(pi, pj, model, tolerance)
+    if found is None:
+        return math.inf
+    cov, centre = found
     hi, wi = pi.work.shape
     hj, wj = pj.work.shape
-    corners = np.vstack([tf.apply(model, _box(wi, hi)), _box(wj, hj)]) - centre
+    corners = tf.apply(model, _box(wi, hi)) if moving_only else np.vstack([tf.apply(model, _box(wi, hi)), _box(wj, hj)])
     worst = 0.0
-    for x, y in corners:
+    for x, y in corners - centre:
         # displacement of a point under a small turn dtheta about the centre and a shift (dx, dy)
         g = np.array([[1.0, 0.0, -y], [0.0, 1.0, x]])
         worst = max(worst, float(np.trace(g @ cov @ g.T)))

@@ -36,6 +36,7 @@ class EstimationSettings:
     ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
     facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP
     polish_below_support: int = 300   # polish placements with fewer agreeing walls than this (polish.py); 0: never
+    polish_below_overlap_m2: float = 15.0  # and those with a common area smaller than this (a small map's angle)
     distinct_degrees: float = 5.0     # placements further apart than this are distinct
     distinct_metres: float = 1.0
     search_factor: int = 4            # working pixels per pixel of the correlation search

@@ -349,7 +349,7 @@ def test_polish_returns_a_nudged_placement_to_the_true_one(repo_root):
     nudged = tf.rigid(3.0, -2.0, math.radians(0.8)) @ true_px
     rng = np.random.default_rng(0)
     before = _corner_error(g2, p1.px_to_map @ nudged @ tf.inverse(p2.px_to_map), true_m)
-    after = _corner_error(g2, p1.px_to_map @ polish(p2, p1, nudged, rng) @ tf.inverse(p2.px_to_map), true_m)
+    after = _corner_error(g2, p1.px_to_map @ polish(p2, p1, [nudged], rng) @ tf.inverse(p2.px_to_map), true_m)
     assert before[1] > 4.0
     # on a corridor this small the walls fix the shift better than the turn
     assert after[0] < before[0] and after[1] < 2.0, (before, after)

@@ -1,0 +1,122 @@
+"""Tracking: a grid placed by the last estimation keeps its placement while the evidence still holds.
+
+Robot map frames do not move (SLAM keeps its origin), so a right placement stays right while the maps grow. Each
+estimation re-checks every previous placement against the union of the other placed grids near it: ICP from the
+old placement, then the same acceptance rules as a new match (the refined placement if it passes, else the old one
+if that still passes). A placement that fails is dropped in that same estimation and its grid goes back to the
+search; the thesis (§4.5) shows why a kept placement must never outlive its evidence. A wrong map makes its
+neighbours contradict too, so when several fail, the one that agrees least is dropped and the others are checked
+again without it (at most MAX_PASSES rounds).
+"""
+from __future__ import annotations
+
+import logging
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import transforms as tf
+from .features import PreparedGrid, prepare
+from .grid import Grid
+from .matching import PairMatch, icp, pair_confidence, plausible, refusal, verify
+from .polish import polish
+from .settings import EstimationSettings
+from .union import Box, compose_near, footprint, most_overlapping
+
+log = logging.getLogger('rosout.multirobot_map_merge.tracking')
+
+CONTEXT_M = 1.0   # metres around a grid's footprint taken from the other grids' union
+MAX_PASSES = 3    # checks of the previous placements: after that, every one still failing is dropped
+
+
+@dataclass
+class Check:
+    """The re-check of one previous placement."""
+    k: int
+    transform: Optional[np.ndarray]   # the (refined) metric placement, None when it no longer holds
+    match: PairMatch                  # figures against the union of the others (j: the most overlapping one)
+
+
+def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
+            placed: Dict[int, np.ndarray], footprints: Dict[int, Box], res: float,
+            s: EstimationSettings) -> Check:
+    """Whether grid k, placed at placed[k], still agrees with the union of the other placed grids near it."""
+    box = footprints.get(k)
+    others = {m: t for m, t in placed.items() if m != k}
+    match = PairMatch(k, most_overlapping(box, footprints, others))
+    if box is None or match.j < 0:
+        match.reason = 'no placed grid near it'
+        return Check(k, None, match)
+    area = (box[0] - CONTEXT_M, box[1] - CONTEXT_M, box[2] + CONTEXT_M, box[3] + CONTEXT_M)
+    union = compose_near(grids, others, footprints, area, res)
+    target = prepare(union, res, None) if union is not None else None
+    if target is None:
+        match.reason = 'no placed grid near it'
+        return Check(k, None, match)
+    pk = prepared[k]
+    prior = tf.inverse(target.px_to_map) @ placed[k] @ pk.px_to_map
+    rng = np.random.default_rng(s.seed + 7919 * k)
+    # ICP from the prior, kept only if it ranks better: on a small common area ICP can slide off to a worse fit
+    candidates = [verify(pk, target, model, s) for model in (prior, icp(pk, target, prior, s, rng))]
+    best = max(candidates, key=lambda c: (plausible(c, s), c.score(s.conflict_weight)))
+    if plausible(best, s) and (best.support < s.polish_below_support or best.overlap_m2 < s.polish_below_overlap_m2):
+        polished = verify(pk, target, polish(pk, target, [best.transform], rng), s)
+        best = polished if plausible(polished, s) else best
+    reason = refusal(best, pk, target, s, onto_union=True)
+    if reason and best is not candidates[0]:
+        best = candidates[0]
+        reason = refusal(best, pk, target, s, onto_union=True)
+    match.best = best
+    if reason:
+        match.reason = f'previous placement no longer holds: {reason}'
+        return Check(k, None, match)
+    metric = target.px_to_map @ best.transform @ tf.inverse(pk.px_to_map)
+    match.accepted = True
+    match.matches, match.inliers = best.support + best.conflicts, best.support
+    match.confidence = pair_confidence(match.inliers, match.matches)
+    match.transform_m = tf.inverse(placed[match.j]) @ metric
+    return Check(k, metric, match)
+
+
+def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Sequence[Optional[Grid]],
+          prepared: Sequence[Optional[PreparedGrid]], res: float, s: EstimationSettings,
+          pool: Executor) -> Tuple[Dict[int, np.ndarray], List[Check]]:
+    """The previous placements (same reference, same merged frame) that still hold, refined, and the checks.
+    Empty when the reference itself no longer agrees with the others: then nothing is kept."""
+    placed = {k: np.asarray(t, float) for k, t in enumerate(previous)
+              if t is not None and k < len(prepared) and prepared[k] is not None}
+    if reference not in placed or len(placed) < 2:
+        return {}, []
+    footprints = {k: box for k, box in ((k, footprint(grids[k], t)) for k, t in placed.items()) if box is not None}
+    checks: Dict[int, Check] = {}
+    to_check = [k for k in placed if k != reference]
+    for _ in range(MAX_PASSES):
+        for c in pool.map(lambda k: recheck(k, grids, prepared, placed, footprints, res, s), to_check):
+            checks[c.k] = c
+        failed = [k for k in to_check if checks[k].transform is None]
+        if not failed:
+            break
+        # one wrong map makes its neighbours contradict too: drop the worst, then check the others without it
+        worst = min(failed, key=lambda k: checks[k].match.best.agreement if checks[k].match.best else -1.0)
+        del placed[worst]
+        to_check = [k for k in placed if k != reference]
+        if not to_check:
+            break
+    else:
+        for k in [k for k in to_check if checks[k].transform is None]:
+            del placed[k]
+    for k in placed:
+        if k != reference:
+            placed[k] = checks[k].transform
+    if len(placed) > 1:
+        ref = recheck(reference, grids, prepared, placed, footprints, res, s)
+        if ref.transform is None:
+            log.info('the reference grid %d no longer agrees with the others (%s): placements searched anew',
+                     reference, ref.match.reason)
+            return {}, list(checks.values()) + [ref]
+    for c in checks.values():
+        if c.transform is None:
+            log.info('grid %d: %s', c.k, c.match.reason)
+    return placed, list(checks.values())

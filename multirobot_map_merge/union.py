@@ -1,0 +1,126 @@
+"""The union of a group of placed grids, prepared so that other grids can be matched against it.
+
+A newcomer often overlaps every single placed map by too little for a pair, but their union well: matched against
+the union, its acceptance is judged on everything the group knows. The union is composed at the working resolution
+in the group's frame (its seed grid's map frame) and prepared like any grid, except for its keypoints: those are
+the members' own, pooled (features.pooled_keypoints), so they grow with the group and no detector runs on it.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import transforms as tf
+from .compose import compose
+from .features import PreparedGrid, crop_to_known, pooled_keypoints, prepare
+from .grid import Grid
+
+Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
+
+
+def footprint(grid: Grid, transform: np.ndarray) -> Optional[Box]:
+    """Bounding box, in the merged frame, of the known part of `grid` placed by `transform`."""
+    box = crop_to_known(grid.data, margin=0)
+    if box is None:
+        return None
+    r0, r1, c0, c1 = box
+    corners = tf.apply(transform @ grid.cell_to_map(), np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], float))
+    (x0, y0), (x1, y1) = corners.min(axis=0), corners.max(axis=0)
+    return float(x0), float(y0), float(x1), float(y1)
+
+
+def overlap_area(a: Optional[Box], b: Optional[Box]) -> float:
+    if a is None or b is None:
+        return 0.0
+    return max(min(a[2], b[2]) - max(a[0], b[0]), 0.0) * max(min(a[3], b[3]) - max(a[1], b[1]), 0.0)
+
+
+def most_overlapping(box: Optional[Box], footprints: Dict[int, Box], candidates) -> int:
+    """The candidate whose footprint overlaps `box` the most (-1 if none overlaps it)."""
+    best, best_area = -1, 0.0
+    for m in candidates:
+        area = overlap_area(box, footprints.get(m))
+        if area > best_area:
+            best, best_area = m, area
+    return best
+
+
+def crop(grid: Grid, box: Box) -> Optional[Grid]:
+    """The part of an unrotated grid (origin yaw 0) inside a metric box, or None if they do not meet."""
+    res = grid.resolution
+    c0 = max(int(math.floor((box[0] - grid.origin[0]) / res)), 0)
+    r0 = max(int(math.floor((box[1] - grid.origin[1]) / res)), 0)
+    c1 = min(int(math.ceil((box[2] - grid.origin[0]) / res)), grid.width)
+    r1 = min(int(math.ceil((box[3] - grid.origin[1]) / res)), grid.height)
+    if c1 <= c0 or r1 <= r0:
+        return None
+    return Grid(grid.data[r0:r1, c0:c1], res, (grid.origin[0] + c0 * res, grid.origin[1] + r0 * res, 0.0),
+                grid.frame_id)
+
+
+def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarray],
+                 footprints: Dict[int, Box], box: Box, resolution: float) -> Optional[Grid]:
+    """The union of the placed grids whose footprint meets `box`, cropped to it."""
+    near = [k for k in transforms if overlap_area(footprints.get(k), box) > 0.0]
+    if not near:
+        return None
+    union = compose([grids[k] for k in near], [transforms[k] for k in near], resolution)
+    return crop(union, box) if union is not None else None
+
+
+class UnionMap:
+    """The composed map of a group's members (grid index -> metric transform into the group's frame)."""
+
+    def __init__(self, resolution: float):
+        self.resolution = resolution
+        self.members: Dict[int, np.ndarray] = {}
+        self.grids: Dict[int, Grid] = {}
+        self.parts: Dict[int, PreparedGrid] = {}
+        self.footprints: Dict[int, Box] = {}
+        self.version = 0                  # grows with every change of the members
+        self._prepared: Optional[PreparedGrid] = None
+        self._prepared_version = -1
+
+    def add(self, k: int, grid: Grid, part: PreparedGrid, transform: np.ndarray) -> None:
+        self.members[k] = np.asarray(transform, float)
+        self.grids[k], self.parts[k] = grid, part
+        box = footprint(grid, self.members[k])
+        if box is not None:
+            self.footprints[k] = box
+        self.version += 1
+
+    def absorb(self, other: 'UnionMap', other_to_self: np.ndarray) -> None:
+        """Take every member of another union, placed by `other_to_self` (its frame -> this frame)."""
+        for k, t in other.members.items():
+            self.add(k, other.grids[k], other.parts[k], other_to_self @ t)
+
+    def prepared(self) -> Optional[PreparedGrid]:
+        """The union prepared for matching (work image, fields, pooled keypoints), rebuilt only after a change;
+        a single member at the identity is its own union."""
+        if self._prepared_version == self.version:
+            return self._prepared
+        only = next(iter(self.members)) if len(self.members) == 1 else None
+        if only is not None and np.allclose(self.members[only], np.eye(3)):
+            self._prepared = self.parts[only]
+        else:
+            order = sorted(self.members)
+            union = compose([self.grids[k] for k in order], [self.members[k] for k in order], self.resolution)
+            self._prepared = prepare(union, self.resolution, None) if union is not None else None
+            if self._prepared is not None:
+                self._prepared.keypoints, self._prepared.descriptors = pooled_keypoints(
+                    [(self.parts[k], self.members[k]) for k in order], self._prepared.px_to_map,
+                    self._prepared.work.shape)
+        self._prepared_version = self.version
+        return self._prepared
+
+    @property
+    def known_pixels(self) -> int:
+        p = self.prepared()
+        return p.known_pixels if p is not None else 0
+
+    def anchor(self, k: int) -> int:
+        """The member whose footprint overlaps member k's the most: whom k is reported as paired with."""
+        found = most_overlapping(self.footprints.get(k), self.footprints, (m for m in self.members if m != k))
+        return found if found >= 0 else min(m for m in self.members if m != k)

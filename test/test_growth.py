@@ -1,0 +1,113 @@
+"""Growing the merge: newcomers matched against the union of the placed maps, tracking of previous placements,
+and the union's pooled keypoints (estimation.py, union.py, tracking.py)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.estimation import estimate
+from multirobot_map_merge.features import pooled_keypoints, prepare
+from multirobot_map_merge.grid import Grid
+from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.matching import match_pair
+from multirobot_map_merge.settings import EstimationSettings
+
+
+def _sample(repo_root, name):
+    folder = repo_root / 'data' / 'samples' / name
+    truth = json.loads((folder / 'truth.json').read_text())
+    grids = [load_map(str(folder / m['file'])) for m in truth['maps']]
+    return grids, [tf.rigid(*m['pose']) for m in truth['maps']]
+
+
+def _error(estimated: np.ndarray, poses, k: int, ref: int):
+    """(degrees, metres) between the estimated placement of map k and the truth, relative to map ref."""
+    d = tf.inverse(tf.inverse(poses[ref]) @ poses[k]) @ estimated
+    return math.degrees(abs(math.atan2(d[1, 0], d[0, 0]))), float(np.hypot(*d[:2, 2]))
+
+
+def test_newcomer_too_small_for_any_pair_joins_the_union(repo_root):
+    """Map n (data/samples/union_join) overlaps each of a, b and c by less than a pair needs; against their union it
+    is placed, within 0.5 degrees and 10 cm, whichever order the maps come in."""
+    grids, poses = _sample(repo_root, 'union_join')
+    s = EstimationSettings()
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    for j in range(3):
+        pair = match_pair(3, j, prepared[3], prepared[j], s)
+        assert not pair.accepted, f'map n alone with map {j} should not be enough: {pair.reason}'
+    for order in ([0, 1, 2, 3], [3, 2, 1, 0], [1, 3, 0, 2]):
+        result = estimate([grids[k] for k in order], s)
+        assert all(t is not None for t in result.transforms), order
+        ref = order[result.reference]
+        at = order.index(3)
+        rot, dist = _error(result.transforms[at], poses, 3, ref)
+        assert rot < 0.5 and dist < 0.1, (order, rot, dist)
+
+
+def _rotated(grid: Grid, degrees: float) -> Grid:
+    """The same map turned by `degrees` in its own frame (as a SLAM failure would leave it)."""
+    turned = tf.rigid(0.0, 0.0, math.radians(degrees)) @ tf.rigid(*grid.origin)
+    x, y, yaw, _ = tf.params(turned)
+    return Grid(grid.data, grid.resolution, (x, y, yaw), grid.frame_id)
+
+
+def test_tracking_keeps_placements_and_drops_one_that_no_longer_holds(repo_root):
+    grids, poses = _sample(repo_root, 'three_robots')
+    s = EstimationSettings()
+    fresh = estimate(grids, s, preferred_reference=0)
+    assert all(t is not None for t in fresh.transforms)
+    # unchanged maps: both other placements are confirmed by tracking and stay where they were
+    again = estimate(grids, s, preferred_reference=0, previous=fresh.transforms)
+    assert again.tracked == 2 and again.reference == 0
+    for k in (1, 2):
+        rot, dist = _error(again.transforms[k], poses, k, 0)
+        assert rot < 0.5 and dist < 0.1
+    # robot 2's map turned by 20 degrees in its frame: its old placement no longer holds and is dropped at once;
+    # it is placed again where its turned map belongs, or left out, never where it was
+    broken = list(grids)
+    broken[2] = _rotated(grids[2], 20.0)
+    after = estimate(broken, s, preferred_reference=0, previous=fresh.transforms)
+    assert after.tracked == 1
+    assert any(p.i == 2 and 'no longer holds' in p.reason for p in after.pairs) or after.transforms[2] is not None
+    if after.transforms[2] is not None:
+        turned_pose = poses[2] @ tf.inverse(tf.rigid(0.0, 0.0, math.radians(20.0)))
+        rot, dist = _error(after.transforms[2], poses[:2] + [turned_pose], 2, 0)
+        assert rot < 1.0 and dist < 0.15, (rot, dist)
+    rot, dist = _error(after.transforms[1], poses, 1, 0)
+    assert rot < 0.5 and dist < 0.1
+
+
+def test_previous_placements_with_another_reference_are_not_tracked(repo_root):
+    grids, _ = _sample(repo_root, 'three_robots')
+    s = EstimationSettings()
+    fresh = estimate(grids, s, preferred_reference=0)
+    other = estimate(grids, s, preferred_reference=1, previous=fresh.transforms)
+    assert other.tracked == 0 and other.reference == 1
+
+
+def test_pooled_keypoints_count_a_corner_seen_twice_once(repo_root):
+    grids, _ = _sample(repo_root, 'three_robots')
+    p = prepare(grids[0], 0.05, 'akaze')
+    alone, _ = pooled_keypoints([(p, np.eye(3))], p.px_to_map, p.work.shape)
+    twice, descriptors = pooled_keypoints([(p, np.eye(3)), (p, np.eye(3))], p.px_to_map, p.work.shape)
+    assert len(alone) == len(p.keypoints) and len(twice) == len(alone) and len(descriptors) == len(twice)
+    # the same map placed 5 m further along x brings those of its keypoints into the union that land in it
+    shift_px = 5.0 / p.resolution
+    shifted, _ = pooled_keypoints([(p, tf.translation(5.0, 0.0))], p.px_to_map, p.work.shape)
+    expected = alone[alone[:, 0] + shift_px < p.work.shape[1]] + (shift_px, 0.0)
+    assert 0 < len(shifted) < len(alone)
+    assert np.allclose(np.sort(shifted[:, 0]), np.sort(expected[:, 0]), atol=1e-6)
+
+
+@pytest.mark.parametrize('name', ['three_robots', 'chain3'])
+def test_growth_places_the_samples_in_any_order(repo_root, name):
+    grids, poses = _sample(repo_root, name)
+    for order in ([0, 1, 2], [2, 1, 0], [1, 2, 0]):
+        result = estimate([grids[k] for k in order], EstimationSettings())
+        ref = order[result.reference]
+        for i, k in enumerate(order):
+            assert result.transforms[i] is not None, (order, k)
+            rot, dist = _error(result.transforms[i], poses, k, ref)
+            assert rot < 0.5 and dist < 0.15, (order, k, rot, dist)
