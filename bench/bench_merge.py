@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark of the merging core (not a test: it prints figures and their ratio to the targets).
 
-    scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
 Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
@@ -101,6 +101,49 @@ def run_row(name: str, data_dir: Path, repeat: int) -> dict:
             'size': f'{grids[0].width}x{grids[0].height}', 'rss_loaded': rss_loaded, 'rss_peak': peak_rss_mib()}
 
 
+CURVE_SIZES = (2, 4, 8, 12, 16, 20, 24, 30)
+
+
+def run_curve(data_dir: Path, repeat: int) -> List[dict]:
+    """Estimation of the first n maps of the 30-map scenario, for growing n: the cost per added map."""
+    import time
+    from multirobot_map_merge.pipeline import MergingPipeline
+    from multirobot_map_merge.settings import EstimationSettings
+    grids, truth = load_scenario(data_dir / ROWS['large30'][0])
+    # each next map is the one that shares most with those before it (as robots of one fleet): every first n maps
+    # can merge, so the curve shows the cost of adding a map, not of leaving one out
+    shared = np.array(truth['overlap']['shared_m2'])
+    order = [int(np.argmax(shared.sum(axis=1)))]
+    while len(order) < len(grids):
+        rest = [k for k in range(len(grids)) if k not in order]
+        order.append(max(rest, key=lambda k: shared[k, order].sum()))
+    grids = [grids[k] for k in order]
+    rows = []
+    for n in CURVE_SIZES:
+        wall, cpu, placed = [], [], 0
+        for _ in range(repeat):
+            pipeline = MergingPipeline(EstimationSettings())
+            pipeline.feed(grids[:n])
+            c0 = time.process_time()
+            wall.append(pipeline.estimate().seconds)
+            cpu.append(time.process_time() - c0)
+            placed = sum(t is not None for t in pipeline.transforms)
+        rows.append({'maps': n, 'wall': med(wall), 'cpu': med(cpu), 'placed': placed})
+    return rows
+
+
+def curve_table(rows: List[dict]) -> List[str]:
+    lines = ['| maps | placed | estimation (s) | CPU (s) | s per map | CPU s per map | CPU s per added map |',
+             '|---|---|---|---|---|---|---|']
+    prev = None
+    for r in rows:
+        added = '-' if prev is None else f"{(r['cpu'] - prev['cpu']) / (r['maps'] - prev['maps']):.3f}"
+        lines.append(f"| {r['maps']} | {r['placed']} | {r['wall']:.2f} | {r['cpu']:.2f} | {r['wall'] / r['maps']:.3f} "
+                     f"| {r['cpu'] / r['maps']:.3f} | {added} |")
+        prev = r
+    return lines
+
+
 def spawn_row(name: str, data_dir: Path, repeat: int) -> Optional[dict]:
     cmd = [sys.executable, __file__, '--row', name, '--data', str(data_dir), '--repeat', str(repeat)]
     print(f'... {name}', file=sys.stderr, flush=True)
@@ -153,6 +196,8 @@ def main() -> int:
     ap.add_argument('--repeat', type=int, default=3)
     ap.add_argument('--quick', action='store_true', help='only the 2- and 4-map rows, 1 repeat')
     ap.add_argument('--markdown', type=Path, help='also write the table as Markdown to this file')
+    ap.add_argument('--curve', action='store_true',
+                    help='only the cost curve: estimation of the first 2..30 maps of the 30-map scenario')
     ap.add_argument('--row', choices=list(ROWS), help=argparse.SUPPRESS)   # internal: one row, JSON out
     args = ap.parse_args()
     data_dir = args.data.resolve()
@@ -161,6 +206,13 @@ def main() -> int:
         return 2
     if args.row:
         print(json.dumps(run_row(args.row, data_dir, max(1, args.repeat))))
+        return 0
+    if args.curve:
+        lines = [f'estimation cost curve (first n maps of {ROWS["large30"][0]}), {max(1, args.repeat)} repeat(s), '
+                 f'median; load average {os.getloadavg()[0]:.2f}', '', *curve_table(run_curve(data_dir, max(1, args.repeat)))]
+        print('\n'.join(lines))
+        if args.markdown:
+            args.markdown.write_text('\n'.join(lines) + '\n')
         return 0
     names = QUICK if args.quick else list(ROWS)
     repeat = 1 if args.quick else max(1, args.repeat)

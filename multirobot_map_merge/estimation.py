@@ -4,7 +4,7 @@ A group starts from a seed (the preferred reference, else the grid with the larg
 rounds. In a round every grid not placed yet is matched against the union of the group (union.py) by descriptors
 only, cheap and in parallel; the accepted ones join, and the next round matches the rest against the grown union.
 A round that adds nobody runs the costly correlation search, on the remaining grids smallest first, each only if
-the union has grown enough since it last searched it. Grids that join no group seed the next group; groups are
+the union or the grid has grown enough since it last searched them (SearchMemo, kept across estimations). Grids that join no group seed the next group; groups are
 matched against each other (union against union), and the largest group is the merge. So a grid whose overlap with
 every single map is too small, but with the union large, joins; and each newcomer costs one match against the
 union, not one per placed map.
@@ -89,18 +89,39 @@ class Group:
         return out
 
 
+class SearchMemo:
+    """The correlation searches that failed: (grid name, names of the group's members) -> (known pixels of the grid,
+    known pixels of the union) at that search. Kept across estimations by the pipeline, so that a live fleet
+    searches a pair of growing maps again only once one has grown by SEARCH_GROWTH. Bounded."""
+
+    def __init__(self, capacity: int = 4096):
+        self._items: Dict[tuple, tuple] = {}
+        self._capacity = capacity
+
+    def get(self, key: tuple) -> Optional[tuple]:
+        return self._items.get(key)
+
+    def remember(self, key: tuple, sizes: tuple) -> None:
+        self._items.pop(key, None)
+        self._items[key] = sizes
+        while len(self._items) > self._capacity:
+            del self._items[next(iter(self._items))]
+
+
 class Grower:
     """Grows groups over one estimation; owns the bookkeeping of which grid was tried against which union."""
 
     def __init__(self, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
                  settings: EstimationSettings, pool: Executor, reference: Optional[int],
-                 progress: Optional[Progress]):
+                 progress: Optional[Progress], memo: Optional['SearchMemo'] = None,
+                 names: Optional[Sequence] = None):
         self.grids, self.prepared, self.res, self.s, self.pool = grids, prepared, res, settings, pool
         self.reference = reference
         self.progress = progress
         self.total = sum(p is not None for p in prepared)
         self.tried: Dict[tuple, int] = {}       # (grid, group id) -> union version of the last descriptor match
-        self.searched: Dict[tuple, int] = {}    # (grid, group id) -> union known pixels at the last search
+        self.searched = memo if memo is not None else SearchMemo()
+        self.names = list(names) if names is not None else list(range(len(prepared)))
         self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
         self.contradicting: set = set()          # grids that overlap a group's union but contradict it
         self.settled = 0
@@ -145,15 +166,18 @@ class Grower:
         """The correlation search, smallest grid first, on grids the union has grown for since their last search;
         stops at the first grid it places (the others are matched against the grown union first)."""
         known = group.union.known_pixels
+        members = frozenset(self.names[m] for m in group.members)
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
-            last = self.searched.get((k, id(group)))
-            if last is not None and known < SEARCH_GROWTH * last:
-                continue
+            key = (self.names[k], members)
+            last = self.searched.get(key)
+            if last is not None and self.prepared[k].known_pixels < SEARCH_GROWTH * last[0] \
+                    and known < SEARCH_GROWTH * last[1]:
+                continue   # searched before (maybe in an earlier estimation), and neither has grown much since
             refused = self.refused.get(k)
             if refused is not None and refused.j == group.seed \
                     and overlap_found(refused.best, self.s, len(group.members) > 1):
                 continue   # the descriptors found the overlap and the maps disagree there
-            self.searched[(k, id(group))] = known
+            self.searched.remember(key, (self.prepared[k].known_pixels, known))
             m = self.match(k, group, search=True)
             if self._admit(group, unplaced, [m]):
                 return True
@@ -201,10 +225,12 @@ class Grower:
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
              preferred_reference: Optional[int] = None,
              previous: Optional[Sequence[Optional[np.ndarray]]] = None,
-             progress: Optional[Progress] = None) -> Estimate:
+             progress: Optional[Progress] = None, memo: Optional[SearchMemo] = None,
+             names: Optional[Sequence] = None) -> Estimate:
     """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
     (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
-    (tracking.py) and only the other grids are searched."""
+    (tracking.py) and only the other grids are searched. `memo` (with `names`, stable names of the grids) keeps
+    the failed correlation searches from one estimation to the next."""
     settings.validate()
     t0 = time.perf_counter()
     cache = cache or FeatureCache()
@@ -216,7 +242,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
         present = [k for k, p in enumerate(prepared) if p is not None]
         if not present:
             return Estimate(transforms, None, seconds=time.perf_counter() - t0)
-        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress)
+        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress, memo, names)
         groups: List[Group] = []
         checks = []
         if preferred_reference in present and previous is not None and len(previous) == len(grids) \

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .compose import compose
-from .estimation import Estimate, Progress, estimate
+from .estimation import Estimate, Progress, SearchMemo, estimate
 from .features import FeatureCache
 from .grid import Grid
 from .known_poses import InitPose, transforms_from_poses
@@ -32,6 +32,7 @@ class MergingPipeline:
         self.settings = settings or EstimationSettings()
         self.settings.validate()
         self.cache = FeatureCache()
+        self.search_memo = SearchMemo()
         self.grids: List[Optional[Grid]] = []
         self.transforms: List[Optional[np.ndarray]] = []
         self.reference: Optional[int] = None
@@ -48,13 +49,15 @@ class MergingPipeline:
 
     def estimate(self, preferred_reference: Optional[int] = None,
                  previous: Optional[Sequence[Optional[np.ndarray]]] = None,
-                 progress: Optional[Progress] = None) -> Estimate:
+                 progress: Optional[Progress] = None, names: Optional[Sequence[str]] = None) -> Estimate:
         """Estimate transforms from the grids' content (unknown initial poses); `previous` (transforms of the
         current grids from the last estimate, same reference) are kept while they still hold (tracking.py);
-        `progress(settled, total)` is called as grids are placed or set aside."""
+        `progress(settled, total)` is called as grids are placed or set aside; `names` (stable names of the grids,
+        e.g. robot namespaces) let failed searches be remembered from one estimation to the next."""
         if preferred_reference is None:
             preferred_reference = self.reference
-        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress)
+        memo = self.search_memo if names is not None else None
+        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress, memo, names)
         self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
         return result
 
