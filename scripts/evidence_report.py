@@ -90,7 +90,9 @@ def report(folder: Path, settings: EstimationSettings) -> str:
     result = estimate(grids, settings)
     pair = result.pairs[0]
     # from the truth and from the pipeline's placement: the better fit of the two neighbourhoods
-    starts = [true_px] + ([pair.best.transform] if pair.best is not None else [])
+    # the estimation matches the smaller map onto the larger: its pair may run from map 1 to map 0
+    found = None if pair.best is None else pair.best.transform if pair.i == 0 else tf.inverse(pair.best.transform)
+    starts = [true_px] + ([found] if found is not None else [])
     fitted = max((best_fit(pi, pj, m) for m in starts), key=lambda m: score(pi, pj, m))
     bf = verify(pi, pj, fitted, settings)
     relaxed = settings.replace(min_support=max(int(0.8 * at.support), 10), min_overlap_m2=0.8 * at.overlap_m2,
@@ -103,7 +105,7 @@ def report(folder: Path, settings: EstimationSettings) -> str:
              f'{bf.deep_conflicts} deep contradictions',
              '  rival:    ' + (f'{off(rival.transform)}, {rival.support} agreeing, agreement {rival.agreement:.2f}, '
                               f'{rival.deep_conflicts} deep contradictions' if rival else 'none found'),
-             '  pipeline: ' + ('accepted, ' + off(pair.best.transform) if pair.accepted else pair.reason)]
+             '  pipeline: ' + ('accepted, ' + off(found) if pair.accepted else pair.reason)]
     return '\n'.join(lines)
 
 
