@@ -135,7 +135,7 @@ class Grower:
     def grow(self, group: Group, unplaced: List[int]) -> None:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union."""
         while unplaced:
-            batch = [k for k in unplaced if self.tried.get((k, id(group))) != group.union.version]
+            batch = [k for k in unplaced if self._worth_matching(k, group)]
             if batch:
                 group.union.prepared()   # once, before the workers share it
                 for k in batch:
@@ -145,6 +145,20 @@ class Grower:
                     continue
             if not self._search(group, unplaced):
                 return
+
+    def _worth_matching(self, k: int, group: Group) -> bool:
+        """Whether grid k is to be matched against the group's union (again): not if it was matched against this
+        union already, nor if its last match found where it overlaps the union and nothing joined there since
+        (the same descriptors against the same walls give the same verdict)."""
+        tried = self.tried.get((k, id(group)))
+        if tried is None:
+            return True
+        if tried == group.union.version:
+            return False
+        last = self.refused.get(k)
+        if last is None or last.j != group.seed or last.best is None or last.best.support < self.s.min_support:
+            return True
+        return group.union.changed_under(self.prepared[k], last.best.transform, since=tried)
 
     def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
         added = False

@@ -28,6 +28,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.matching')
 
 FOUND_AGREEMENT = 0.6   # see overlap_found
 POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished, the best kept
+LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in before it is screened
 
 
 @dataclass
@@ -357,11 +358,17 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     def refine(model: np.ndarray, screen: bool = True) -> Optional[Placement]:
         if screen and quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
             return None
+        if not screen:
+            # far off until ICP pulls it in: screened after a light ICP (few walls) instead
+            model = icp(pi, pj, model, light, rng)
+            if quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
+                return None
         return verify(pi, pj, icp(pi, pj, model, s, rng), s)
 
     def refine_all(models, screen: bool = True) -> List[Placement]:
         return [c for c in (refine(m, screen) for m in models) if c is not None]
 
+    light = s.replace(icp_max_points=LIGHT_ICP_POINTS)
     pairs = putative_matches(pi, pj, s.ratio, not onto_union) if descriptors else np.zeros((0, 2), np.int64)
     result.descriptor_matches = len(pairs)
     p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
@@ -384,7 +391,6 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         return result
     if plausible(best, s):
         # only worth the extra work for a placement that could be accepted
-        # unscreened: a turned placement is far off until ICP pulls it in
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
     candidates.sort(key=rank, reverse=True)
     if plausible(candidates[0], s) and (candidates[0].support < s.polish_below_support

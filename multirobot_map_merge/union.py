@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Dict, Optional, Sequence, Tuple
 
+import cv2
 import numpy as np
 
 from . import transforms as tf
@@ -18,6 +19,7 @@ from .features import PreparedGrid, crop_to_known, pooled_keypoints, prepare
 from .grid import Grid
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
+HISTORY = 4   # prepared versions of a union kept to tell where it changed
 
 
 def footprint(grid: Grid, transform: np.ndarray) -> Optional[Box]:
@@ -80,6 +82,7 @@ class UnionMap:
         self.parts: Dict[int, PreparedGrid] = {}
         self.footprints: Dict[int, Box] = {}
         self.version = 0                  # grows with every change of the members
+        self._history: Dict[int, PreparedGrid] = {}   # the last few prepared versions (see changed_within)
         self._prepared: Optional[PreparedGrid] = None
         self._prepared_version = -1
 
@@ -90,6 +93,22 @@ class UnionMap:
         if box is not None:
             self.footprints[k] = box
         self.version += 1
+
+    def changed_under(self, part: PreparedGrid, model: np.ndarray, since: int) -> bool:
+        """Whether the union differs, where grid `part` lies when placed by `model` (its pixels -> pixels of the
+        union prepared at version `since`), from that union (True when unknown)."""
+        old, new = self._history.get(since), self.prepared()
+        if old is None or new is None:
+            return True
+        shift = np.linalg.inv(new.px_to_map) @ old.px_to_map
+        if not np.allclose(shift[:2, :2], np.eye(2)) or not np.allclose(shift[:2, 2], np.round(shift[:2, 2])):
+            return True
+        dx, dy = (int(round(v)) for v in shift[:2, 2])
+        h, w = old.work.shape
+        if dx < 0 or dy < 0 or dy + h > new.work.shape[0] or dx + w > new.work.shape[1]:
+            return True
+        under = cv2.warpAffine((part.work >= 0).view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
+        return not np.array_equal(old.work[under], new.work[dy:dy + h, dx:dx + w][under])
 
     def absorb(self, other: 'UnionMap', other_to_self: np.ndarray) -> None:
         """Take every member of another union, placed by `other_to_self` (its frame -> this frame)."""
@@ -113,6 +132,9 @@ class UnionMap:
                     [(self.parts[k], self.members[k]) for k in order], self._prepared.px_to_map,
                     self._prepared.work.shape)
         self._prepared_version = self.version
+        self._history[self.version] = self._prepared
+        for old in sorted(self._history)[:-HISTORY]:
+            del self._history[old]
         return self._prepared
 
     @property
