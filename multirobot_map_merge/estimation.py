@@ -148,15 +148,15 @@ class Grower:
 
     def _worth_matching(self, k: int, group: Group) -> bool:
         """Whether grid k is to be matched against the group's union (again): not if it was matched against this
-        union already, nor if its last match found where it overlaps the union and nothing joined there since
-        (the same descriptors against the same walls give the same verdict)."""
+        union already, nor if its last match found where it overlaps the union (and contradicts it) and the union
+        has not changed there since (the same descriptors against the same walls give the same verdict)."""
         tried = self.tried.get((k, id(group)))
         if tried is None:
             return True
         if tried == group.union.version:
             return False
         last = self.refused.get(k)
-        if last is None or last.j != group.seed or last.best is None or last.best.support < self.s.min_support:
+        if last is None or last.j != group.seed or not overlap_found(last.best, self.s, len(group.members) > 1):
             return True
         return group.union.changed_under(self.prepared[k], last.best.transform, since=tried)
 
