@@ -272,9 +272,10 @@ class Supervisor:
         lines.append('demo: merge latency in sim s (joinable: its map overlaps the others\' at true poses by '
                      '>= 4 m² and 5 %):')
         for r in rows:
-            lines.append(f"demo:   {r['robot']}: joinable {_sec(r['joinable_sim_s'])}, merged {_sec(r['merged_sim_s'])}, "
-                         + ('latency - (reference)' if r['latency_reference'] else
-                            f"latency {'n/a' if r['latency_s'] is None else format(r['latency_s'], '.1f')}"))
+            latency = '- (reference)' if r['latency_reference'] else \
+                'n/a' if r['latency_s'] is None else f"{r['latency_s']:.1f}"
+            lines.append(f"demo:   {r['robot']}: joinable {_sec(r['joinable_sim_s'])}, "
+                         f"merged {_sec(r['merged_sim_s'])}, latency {latency}")
         lines.append(f"demo: merged map {files['yaml']} (+ .pgm, .png)" if files else 'demo: no merged map received')
         text = '\n'.join(lines)
         with open(os.path.join(self.out, 'summary.json'), 'w') as f:
