@@ -57,15 +57,17 @@ def _demo_config(*args):
 
 
 @pytest.mark.skipif(shutil.which('roslaunch') is None, reason='ROS environment missing (run under scripts/env.sh)')
-@pytest.mark.parametrize('robots, size', [(3, (24.0, 16.0)), (6, (24.0, 16.0)), (7, (48.0, 32.0)),
-                                          (12, (48.0, 32.0))])
-def test_demo_launch_scales_to_twelve(robots, size):
+@pytest.mark.parametrize('robots, size, speedup', [(3, (24.0, 16.0), 5.0), (6, (24.0, 16.0), 5.0),
+                                                   (7, (48.0, 32.0), 2.0), (12, (48.0, 32.0), 2.0)])
+def test_demo_launch_scales_to_twelve(robots, size, speedup):
     config = _demo_config(f'num_robots:={robots}')
     explorers = sorted(n.namespace for n in config.nodes if n.type == 'explore')
     assert explorers == sorted(f'/robot_{i}/' for i in range(1, robots + 1))
     assert config.params[f'/robot_{robots}/explore/robot_base_frame'].value == f'robot_{robots}/base_link'
     assert (config.params['/fleet_sim/world_width'].value, config.params['/fleet_sim/world_height'].value) == size
     assert config.params['/fleet_sim/num_robots'].value == robots
+    assert config.params['/fleet_sim/speedup'].value == config.params['/demo_supervisor/speedup'].value == speedup
+    assert config.params['/demo_supervisor/limit_wall'].value == (900.0 if robots > 6 else 240.0)
 
 
 @pytest.mark.skipif(shutil.which('roslaunch') is None, reason='ROS environment missing (run under scripts/env.sh)')
