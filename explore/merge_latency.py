@@ -4,8 +4,8 @@ merged map, and when it did.
 A robot is *joinable* once its map, placed at its true pose, overlaps the union of the other robots' maps (each at
 its true pose) by at least ``MIN_SHARED_M2`` and by at least ``MIN_FRACTION`` of its own known area: the shared
 scorer's pair thresholds (../shared/eval, truth.json ``overlap``: 4 m², 5 %), applied to the union. Known areas
-are compared on a coarse world raster (``KnownRaster``, 0.1 m cells like the scorer's), cheap enough to redo every
-few seconds for a dozen robots.
+are compared on a coarse world raster (``explore.coverage.KnownRaster``, 0.1 m cells like the scorer's), cheap
+enough to redo every few seconds for a dozen robots.
 
 ``LatencyTracker`` turns the joinable robots and map_merge's included robots over time into, per robot,
 ``joinable_sim_s`` (first time joinable), ``merged_sim_s`` (start of the last unbroken stretch in the merged map that

@@ -35,8 +35,8 @@ from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
 
-from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
-from explore.merge_latency import KnownRaster, LatencyTracker, joinable_robots
+from explore.coverage import KnownRaster, explored_share, placement_errors, reachable_mask, truth_from_estimate
+from explore.merge_latency import LatencyTracker, joinable_robots
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
