@@ -42,25 +42,58 @@ def reachable_mask(world: Grid, starts: Iterable[Tuple[float, float]]) -> np.nda
     return np.isin(labels, sorted(keep))
 
 
+class KnownRaster:
+    """A world raster on which robot maps are drawn at their world poses: a raster cell is known when its centre
+    falls on a known cell (not -1) of the map. Drawing is one OpenCV warp per map (nearest cell), cheap enough for
+    a dozen large maps every few seconds."""
+
+    def __init__(self, world_from_pixel: np.ndarray, shape: Tuple[int, int]) -> None:
+        # world_from_pixel: 3x3, raster pixel (column, row) -> world metres of the pixel's centre
+        self.world_from_pixel = np.asarray(world_from_pixel, float)
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.cell_m = float(np.hypot(*self.world_from_pixel[:2, 0]))
+
+    @classmethod
+    def box(cls, bounds: Sequence[float], cell_m: float = 0.1) -> 'KnownRaster':
+        """Axis-aligned cells of ``cell_m`` over ``bounds`` = x0, y0, x1, y1 (world metres)."""
+        x0, y0, x1, y1 = (float(v) for v in bounds)
+        if not (cell_m > 0 and x1 > x0 and y1 > y0):
+            raise ValueError(f'KnownRaster: empty bounds {bounds} or bad cell {cell_m}')
+        shape = (max(1, int(math.ceil((y1 - y0) / cell_m))), max(1, int(math.ceil((x1 - x0) / cell_m))))
+        return cls(np.array([[cell_m, 0.0, x0 + 0.5 * cell_m], [0.0, cell_m, y0 + 0.5 * cell_m], [0.0, 0.0, 1.0]]),
+                   shape)
+
+    @classmethod
+    def on_grid(cls, world: Grid) -> 'KnownRaster':
+        """The cells of a world grid itself (its frame is the world frame)."""
+        return cls(world.cell_to_map() @ tf.translation(0.5, 0.5), world.data.shape)
+
+    @classmethod
+    def around(cls, world: Grid, cell_m: float = 0.1) -> 'KnownRaster':
+        """Axis-aligned cells of ``cell_m`` covering a world grid."""
+        corners = tf.apply(world.cell_to_map(), np.array([[0, 0], [world.width, 0], [0, world.height],
+                                                           [world.width, world.height]], float))
+        return cls.box((*corners.min(axis=0), *corners.max(axis=0)), cell_m)
+
+    def known(self, grid: Optional[Grid], pose: Pose) -> np.ndarray:
+        """Boolean raster of the cells known in ``grid`` placed at ``pose`` (its frame's pose in the world)."""
+        if grid is None or grid.is_empty():
+            return np.zeros(self.shape, bool)
+        # raster pixel -> source pixel (OpenCV: a pixel's centre has integer coordinates, nearest = round)
+        to_src = tf.translation(-0.5, -0.5) @ tf.inverse(tf.rigid(*pose) @ grid.cell_to_map()) @ self.world_from_pixel
+        out = cv2.warpAffine(grid.known_mask().astype(np.uint8), to_src[:2], (self.shape[1], self.shape[0]),
+                             flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=0)
+        return out.astype(bool)
+
+
 def explored_mask(world: Grid, reachable: np.ndarray, maps: Sequence[Tuple[Grid, Pose]]) -> np.ndarray:
     """Reachable world cells that are known in at least one of ``maps`` (each a grid with its frame's world pose)."""
-    rows, cols = np.nonzero(reachable)
-    pts = world.cell_to_map() @ np.vstack([cols + 0.5, rows + 0.5, np.ones(cols.size)])
-    seen = np.zeros(cols.size, bool)
-    for grid, (x, y, yaw) in maps:
-        if grid is None or grid.is_empty():
-            continue
-        c, s = np.cos(yaw), np.sin(yaw)
-        world_from_map = np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
-        cell = np.linalg.inv(world_from_map @ grid.cell_to_map()) @ pts
-        mc, mr = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
-        ok = (mc >= 0) & (mc < grid.width) & (mr >= 0) & (mr < grid.height)
-        known = np.zeros(cols.size, bool)
-        known[ok] = grid.data[mr[ok], mc[ok]] >= 0
-        seen |= known
-    out = np.zeros(reachable.shape, bool)
-    out[rows, cols] = seen
-    return out
+    raster = KnownRaster.on_grid(world)
+    seen = np.zeros(reachable.shape, bool)
+    for grid, pose in maps:
+        seen |= raster.known(grid, pose)
+    return seen & reachable
 
 
 def explored_share(world: Grid, reachable: np.ndarray, maps: Sequence[Tuple[Grid, Pose]]) -> float:

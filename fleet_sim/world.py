@@ -52,6 +52,14 @@ class _Plan:
         self.data[row - 2:row + 3, a:a + width] = FREE
         return (a + width // 2, row)
 
+    def door_mid_h(self, row: int, c0: int, c1: int, width: int) -> Tuple[int, int]:
+        """A door of ``width`` cells in the middle of (c0, c1), if it fits between the walls at its ends."""
+        a = (c0 + c1 - width) // 2
+        if a - 2 < c0 or a + width + 2 > c1:
+            return (-1, -1)
+        self.data[row - 2:row + 3, a:a + width] = FREE
+        return (a + width // 2, row)
+
     def door_v(self, col: int, r0: int, r1: int, width: int) -> Tuple[int, int]:
         clear = self.cells(0.3)
         lo, hi = r0 + clear, r1 - clear - width
@@ -157,7 +165,13 @@ def make_floor_plan(seed: int, width_m: float = 24.0, height_m: float = 16.0, re
                         # back room: door into the front row, between two of its dividers
                         fx = [a] + [c for c in row_cuts[front_i] if a < c < b] + [b]
                         k = int(np.argmax(np.diff(fx)))
-                        doors.append(p.door_h(rb if side == 'below' else ra, fx[k], fx[k + 1], door_w()))
+                        row = rb if side == 'below' else ra
+                        door = p.door_h(row, fx[k], fx[k + 1], door_w())
+                        if door[0] < 0:
+                            # too narrow for a door with clearance (a front divider close by): the narrowest
+                            # door in the middle, drawing nothing from rng so other plans stay as they were
+                            door = p.door_mid_h(row, fx[k], fx[k + 1], door_lo)
+                        doors.append(door)
                     if vc is not None and rng.random() < 0.5 and (a == vc[1] or b == vc[0]):
                         doors.append(p.door_v(vc[1] if a == vc[1] else vc[0], ra, rb, door_w()))
                 for cut in cuts:                        # some rooms connect to their neighbour

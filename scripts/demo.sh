@@ -8,14 +8,15 @@
 # error of the merge against the simulator's ground truth). Full roslaunch output: out/demo/roslaunch.log.
 #
 # Options (also as --opt=value):
-#   --robots N          robots, 1..6 (default 3)
-#   --world FILE.yaml   world map (map_server YAML; occupied and unknown cells are walls); default: generated
+#   --robots N          robots, 1..12 (default 3)
+#   --world FILE.yaml   world map (map_server YAML; occupied and unknown cells are walls); default: generated,
+#                       24 m x 16 m, or 48 m x 32 m for more than 6 robots
 #   --world-seed S      floor plan of the generated world (default 0)
 #   --seed S            start poses and laser noise (default 0)
-#   --speedup X         sim time / real time (default 5)
+#   --speedup X         sim time / real time (default 5; 2 for more than 6 robots, which 2 cores sustain)
 #   --no-coordination   explorers ignore each other (plain explore_lite behaviour)
 #   --limit-sim S       give up after S s of sim time (default 1200)
-#   --limit-wall S      give up after S s of real time (default 240)
+#   --limit-wall S      give up after S s of real time (default 240; 900 for more than 6 robots)
 #   --out DIR           output directory (default out/demo)
 #   --offline [NAME]    instead: merge the sample maps data/samples/NAME (default three_robots) offline and report
 #                       their placement error (no ROS master)
@@ -27,9 +28,9 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # shellcheck disable=SC2048,SC2086
 set -- $*
 
-robots=3 world="" world_seed=0 seed=0 speedup=5 coordinate=true limit_sim=1200 limit_wall=240
+robots=3 world="" world_seed=0 seed=0 speedup="" coordinate=true limit_sim=1200 limit_wall=""
 out="$repo/out/demo" offline="" scenario=three_robots
-usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,23p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 need() { [ $# -ge 2 ] && [ -n "$2" ] || { echo "demo: $1 needs a value" >&2; exit 2; }; }
 while [ $# -gt 0 ]; do
   opt=$1 val=""
@@ -52,7 +53,9 @@ while [ $# -gt 0 ]; do
 done
 is_int() { [[ $1 =~ ^[0-9]+$ ]]; }
 is_num() { [[ $1 =~ ^[0-9]+([.][0-9]*)?$ ]]; }
-is_int "$robots" && [ "$robots" -ge 1 ] && [ "$robots" -le 6 ] || { echo "demo: --robots must be 1..6" >&2; exit 2; }
+is_int "$robots" && [ "$robots" -ge 1 ] && [ "$robots" -le 12 ] || { echo "demo: --robots must be 1..12" >&2; exit 2; }
+many=$([ "$robots" -gt 6 ] && echo 1 || true)
+: "${speedup:=$([ -n "$many" ] && echo 2 || echo 5)}" "${limit_wall:=$([ -n "$many" ] && echo 900 || echo 240)}"
 is_int "$world_seed" && is_int "$seed" || { echo "demo: seeds must be non-negative integers" >&2; exit 2; }
 is_num "$speedup" && is_num "$limit_sim" && is_num "$limit_wall" \
   || { echo "demo: --speedup and the limits must be positive numbers" >&2; exit 2; }

@@ -10,6 +10,13 @@ ground truth (rotation, and the largest displacement of the robot map's known-ar
 placed robot, as scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch
 (it is `required`).
 
+Merge latency (explore.merge_latency): every ~0.5 s the robots' maps are drawn at their true poses on a 0.1 m world
+raster; a robot is joinable once its map overlaps the union of the others' by the shared scorer's thresholds (4 m²
+and 5 % of its own known area), stamped with the newest map stamp used. map_merge's ~status (stamp, included)
+gives when each robot entered the merged map. summary.json's placement rows carry joinable_sim_s, merged_sim_s
+(start of the stretch in the merged map that lasts until the end) and latency_s; `progress` holds the progress
+lines (sim s, real s, explored share, robots merged and joinable) for the fleet benchmark (bench/bench_fleet.py).
+
 Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup (for the summary),
 ~merged_topic, ~status_topic, ~world_topic (default /fleet_sim/world_map).
 """
@@ -26,14 +33,18 @@ import rospy
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Log
+from rospy.numpy_msg import numpy_msg
 
-from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
+from explore.coverage import KnownRaster, explored_share, placement_errors, reachable_mask, truth_from_estimate
+from explore.merge_latency import LatencyTracker, joinable_robots
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
 from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
 
 Pose = Tuple[float, float, float]
+# maps arrive with their cells as one numpy array (genpy's default is a tuple of ints: ~20x slower for 12 robots)
+GridMsg = numpy_msg(OccupancyGrid)
 
 
 def _pose(msg: PoseStamped) -> Pose:
@@ -63,15 +74,18 @@ class Supervisor:
         self.merged_at = 0.0           # wall time the newest merged map arrived
         self.stopped: set = set()
         self.reach: Optional[np.ndarray] = None
-        rospy.Subscriber(rospy.get_param('~world_topic', '/fleet_sim/world_map'), OccupancyGrid, self.on_world,
+        self.latency = LatencyTracker(self.names)
+        self._raster: Optional[KnownRaster] = None   # main loop only
+        self.progress: List[dict] = []   # owned by the main loop
+        rospy.Subscriber(rospy.get_param('~world_topic', '/fleet_sim/world_map'), GridMsg, self.on_world,
                          queue_size=1, buff_size=1 << 24)
         for name in self.names:
             rospy.Subscriber(f'/{name}/ground_truth/start_pose', PoseStamped, self.on_start, callback_args=name)
-            rospy.Subscriber(f'/{name}/map', OccupancyGrid, self.on_map, callback_args=name, queue_size=1,
+            rospy.Subscriber(f'/{name}/map', GridMsg, self.on_map, callback_args=name, queue_size=1,
                              buff_size=1 << 24)
         rospy.Subscriber(rospy.get_param('~status_topic', '/map_merge/map_merge/status'), MergeStatus,
                          self.on_status, queue_size=1)
-        rospy.Subscriber(rospy.get_param('~merged_topic', '/map_merge/map'), OccupancyGrid, self.on_merged,
+        rospy.Subscriber(rospy.get_param('~merged_topic', '/map_merge/map'), GridMsg, self.on_merged,
                          queue_size=1, buff_size=1 << 25)
         rospy.Subscriber('/rosout', Log, self.on_log, queue_size=500)
 
@@ -100,8 +114,10 @@ class Supervisor:
                 self.maps[name] = grid
 
     def on_status(self, msg):
+        stamp = msg.header.stamp.to_sec() or rospy.get_time()
         with self.lock:
             self.status = msg
+            self.latency.included(stamp, [e.robot_namespace.strip('/') for e in msg.robots if e.included])
 
     def on_merged(self, msg):
         grid = self._grid(msg)
@@ -126,6 +142,24 @@ class Supervisor:
                 self.reach = reachable_mask(world, [p[:2] for p in starts.values()])
             reach = self.reach
         return explored_share(world, reach, [(maps[n], starts[n]) for n in self.names if n in maps])
+
+    def update_joinable(self) -> int:
+        """Marks the robots whose maps now overlap the union of the others' (true poses); returns how many are."""
+        with self.lock:
+            world, starts, maps = self.world, dict(self.starts), dict(self.maps)
+        if world is None:
+            return 0
+        if self._raster is None:
+            self._raster = KnownRaster.around(world)
+        placed = {n: (maps[n], starts[n]) for n in self.names if n in maps and n in starts}
+        if not placed:
+            return 0
+        # the state holds from the newest map in it on (maps arrive every sim second or so)
+        stamp = max(grid.stamp or 0.0 for grid, _ in placed.values()) or rospy.get_time()
+        names = joinable_robots(self._raster, placed)
+        with self.lock:
+            self.latency.joinable(stamp, names)
+        return len(names)
 
     def placements(self) -> Tuple[List[dict], Optional[Pose]]:
         """Per robot: included, and the placement errors against the ground truth; plus the pose of map_merge's
@@ -162,12 +196,15 @@ class Supervisor:
         while not rospy.is_shutdown():
             time.sleep(0.5)
             wall, sim = time.monotonic() - wall0, rospy.get_time()
+            joinable = self.update_joinable()
             with self.lock:
                 stopped = len(self.stopped)
                 included = sum(1 for e in (self.status.robots if self.status else []) if e.included)
             if wall - last_print >= 2.0:
                 last_print = wall
                 share = self.explored()
+                self.progress.append({'sim_s': round(sim, 2), 'real_s': round(wall, 2), 'explored_share': share,
+                                      'merged': included, 'joinable': joinable})
                 line = (f"[demo] sim {sim:7.1f} s | explored {'  -  ' if share is None else f'{100 * share:5.1f}'} % "
                         f"| merged {included}/{len(self.names)} robots | exploring {len(self.names) - stopped}/"
                         f"{len(self.names)} | real {wall:5.1f} s")
@@ -197,6 +234,11 @@ class Supervisor:
             time.sleep(0.2)
         share = self.explored()
         rows, truth_from_merged = self.placements()
+        self.update_joinable()
+        with self.lock:
+            latency = {r['robot']: r for r in self.latency.rows()}
+        for r in rows:
+            r.update({k: v for k, v in latency[r['robot']].items() if k != 'robot'})
         merged_share = self.merged_share(truth_from_merged)
         os.makedirs(self.out, exist_ok=True)
         files = {}
@@ -212,7 +254,7 @@ class Supervisor:
             files = {'yaml': yaml_path, 'pgm': pgm_path, 'png': png_path}
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
-                   'placement': rows, 'files': files,
+                   'placement': rows, 'files': files, 'progress': self.progress,
                    # ground-truth start poses (x, y, yaw in the world): with robots/*.yaml, a merge replays offline
                    'start_poses': {name: list(pose) for name, pose in sorted(self.starts.items())}}
         lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
@@ -227,6 +269,13 @@ class Supervisor:
                              + (' (reference)' if r['robot'] == r['reference'] else ''))
             else:
                 lines.append(f"demo:   {r['robot']}: not in the merged map")
+        lines.append('demo: merge latency in sim s (joinable: its map overlaps the others\' at true poses by '
+                     '>= 4 m² and 5 %):')
+        for r in rows:
+            latency = '- (reference)' if r['latency_reference'] else \
+                'n/a' if r['latency_s'] is None else f"{r['latency_s']:.1f}"
+            lines.append(f"demo:   {r['robot']}: joinable {_sec(r['joinable_sim_s'])}, "
+                         f"merged {_sec(r['merged_sim_s'])}, latency {latency}")
         lines.append(f"demo: merged map {files['yaml']} (+ .pgm, .png)" if files else 'demo: no merged map received')
         text = '\n'.join(lines)
         with open(os.path.join(self.out, 'summary.json'), 'w') as f:
@@ -238,6 +287,10 @@ class Supervisor:
 
 def _pct(v: Optional[float]) -> str:
     return 'n/a' if v is None else f'{100 * v:.1f} %'
+
+
+def _sec(v: Optional[float]) -> str:
+    return 'never' if v is None else f'{v:.1f}'
 
 
 if __name__ == '__main__':

@@ -6,7 +6,8 @@ test_merge_matches_ground_truth: map_merge's latched status places all ~num_robo
     simulator's ground truth (largest displacement of the corners of the robot map's known area).
 test_demo_writes_merged_map: the demo supervisor ends (every explorer stopped, or its limit) and writes
     ~out/summary.json and the merged map ~out/merged.yaml (+ .pgm, .png); placed in the ground-truth world through
-    map_merge's placement, the written map covers at least ~min_merged_share of the reachable area.
+    map_merge's placement, the written map covers at least ~min_merged_share of the reachable area; the summary's
+    merge latency fields (joinable_sim_s, merged_sim_s, latency_s, latency_reference) are filled and consistent.
 """
 import json
 import os
@@ -98,6 +99,28 @@ class DemoCheck(unittest.TestCase):
         rospy.loginfo('ex_demo_checker: the merged map covers %.1f %% (%s)', 100 * share, summary['end'])
         self.assertGreaterEqual(share, float(rospy.get_param('~min_merged_share', 0.9)))
         self.assertEqual(len(summary['placement']), len(self.names))
+        self.check_latency_fields(summary)
+
+    def check_latency_fields(self, summary):
+        """Merge latency: every robot was joinable and is merged (all placed, the building covered); one reference
+        robot without a latency; the others' latency is merged - joinable; the progress lines are in time order."""
+        rows = summary['placement']
+        for r in rows:
+            for key in ('joinable_sim_s', 'merged_sim_s'):
+                self.assertIsInstance(r[key], float, r)
+                self.assertTrue(0.0 < r[key] <= summary['sim_time_s'] + 30.0, r)
+        refs = [r for r in rows if r['latency_reference']]
+        self.assertEqual(len(refs), 1, rows)
+        self.assertIsNone(refs[0]['latency_s'])
+        self.assertEqual(refs[0]['merged_sim_s'], min(r['merged_sim_s'] for r in rows))
+        for r in rows:
+            if r is not refs[0]:
+                self.assertAlmostEqual(r['latency_s'], r['merged_sim_s'] - r['joinable_sim_s'], places=6)
+        times = [p['sim_s'] for p in summary['progress']]
+        self.assertGreater(len(times), 2)
+        self.assertEqual(times, sorted(times))
+        rospy.loginfo('ex_demo_checker: latency %s', [(r['robot'], r['joinable_sim_s'], r['merged_sim_s'],
+                                                       r['latency_s']) for r in rows])
 
 
 if __name__ == '__main__':

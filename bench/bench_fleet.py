@@ -1,0 +1,245 @@
+#!/usr/bin/env python3
+"""Live fleet benchmark (not a test: it prints figures): the live demo (scripts/demo.sh) for fleets of several sizes
+over a few seeds, and per run and per fleet size:
+
+  * merge latency: per robot, sim seconds from *joinable* (its map at its true pose overlaps the union of the
+    others' by >= 4 m² and 5 %) to *merged* (in map_merge's merged map from then until the end), as the demo
+    supervisor writes them into summary.json; median and max per run. A robot joinable but never merged counts as
+    "late": its latency is at least the rest of the run (shown as >X);
+  * exploration: explored share of the reachable area and robots in the merged map at sim-time checkpoints (--at)
+    and at the end;
+  * map_merge CPU in cores (utime + stime from /proc of the map_merge process the demo started, sampled every
+    --sample s): average over the run and the highest --window s window; and CPU seconds per sim second, which
+    does not depend on the speed-up;
+  * the final placement error against the ground truth (largest rotation and corner error over the robots).
+
+    scripts/env.sh python bench/bench_fleet.py [--robots 3 6 12] [--seeds 1 2] [--speedup X] [--world-seed S]
+        [--limit-sim S] [--limit-wall S] [--at 60 120 240] [--out out/bench_fleet] [--json FILE]
+
+Each run is `scripts/demo.sh --robots N --seed S --out OUT/rN_sS` (its default speed-up and limits unless given);
+its summary stays in that folder. The machine is shared: wall-clock figures are inflated by other load, sim-time
+latencies much less so (but a demo that cannot keep its speed-up runs its nodes at a lower effective rate).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+from bench_node import proc_cpu_seconds   # same directory
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------------------------------------- processes
+def descendants(root: int) -> List[int]:
+    """Pids of every process below ``root`` (from /proc/*/stat parent links)."""
+    children: Dict[int, List[int]] = {}
+    for entry in os.scandir('/proc'):
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int(Path(entry.path, 'stat').read_text().rsplit(')', 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue   # the process just ended
+        children.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [root]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def find_node(root: int, name: str) -> Optional[int]:
+    """The pid of the ROS node ``__name:=name`` started below ``root``, if running."""
+    for pid in descendants(root):
+        try:
+            argv = Path(f'/proc/{pid}/cmdline').read_bytes().split(b'\0')
+        except OSError:
+            continue
+        if f'__name:={name}'.encode() in argv:
+            return pid
+    return None
+
+
+def run_demo(robots: int, seed: int, out: Path, args: argparse.Namespace) -> Tuple[int, List[Tuple[float, float]]]:
+    """Runs the demo once; returns its exit code and the (wall s, CPU s) samples of its map_merge process."""
+    cmd = ['bash', str(REPO / 'scripts' / 'demo.sh'), '--robots', str(robots), '--seed', str(seed),
+           '--world-seed', str(args.world_seed), '--out', str(out)]
+    for opt in ('speedup', 'limit_sim', 'limit_wall'):
+        if getattr(args, opt) is not None:
+            cmd += ['--' + opt.replace('_', '-'), str(getattr(args, opt))]
+    out.mkdir(parents=True, exist_ok=True)
+    samples: List[Tuple[float, float]] = []
+    with open(out / 'demo.log', 'w') as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
+        pid, ended = None, False
+        try:
+            while proc.poll() is None:
+                time.sleep(args.sample)
+                if pid is None:
+                    pid = find_node(proc.pid, 'map_merge')
+                if pid is not None and not ended:
+                    try:
+                        samples.append((time.monotonic(), proc_cpu_seconds(pid)))
+                    except (OSError, IndexError, ValueError):
+                        ended = True     # the node has exited: keep the samples so far
+        except KeyboardInterrupt:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(timeout=60)
+            raise
+    return proc.returncode, samples
+
+
+# ---------------------------------------------------------------------------------------------- figures
+def cpu_figures(samples: List[Tuple[float, float]], window: float) -> Dict[str, Optional[float]]:
+    if len(samples) < 2:
+        return {'cpu_cores_avg': None, 'cpu_cores_peak': None, 'cpu_s': None}
+    (t0, c0), (t1, c1) = samples[0], samples[-1]
+    peak = None
+    j = 0
+    for i in range(len(samples)):
+        while j < i and samples[i][0] - samples[j + 1][0] >= window:
+            j += 1
+        if samples[i][0] - samples[j][0] >= window:
+            cores = (samples[i][1] - samples[j][1]) / (samples[i][0] - samples[j][0])
+            peak = cores if peak is None else max(peak, cores)
+    return {'cpu_cores_avg': (c1 - c0) / (t1 - t0) if t1 > t0 else None, 'cpu_cores_peak': peak, 'cpu_s': c1 - c0}
+
+
+def at_time(progress: List[dict], sim_s: float) -> Optional[dict]:
+    """The last progress line at or before ``sim_s`` (None before the first, or beyond the end of the run)."""
+    if not progress or sim_s > progress[-1]['sim_s'] + 5.0:
+        return None
+    before = [p for p in progress if p['sim_s'] <= sim_s]
+    return before[-1] if before else None
+
+
+def run_figures(summary: dict, samples: List[Tuple[float, float]], args: argparse.Namespace) -> dict:
+    rows = summary['placement']
+    end = summary['sim_time_s']
+    latencies = [r['latency_s'] for r in rows if r.get('latency_s') is not None]
+    # joinable, never merged (or dropped at the end): at least the rest of the run
+    late = [end - r['joinable_sim_s'] for r in rows if not r.get('latency_reference')
+            and r.get('joinable_sim_s') is not None and r.get('merged_sim_s') is None]
+    placed = [r for r in rows if 'rotation_error_deg' in r]
+    progress = summary.get('progress', [])
+    checkpoints = {}
+    for t in args.at:
+        p = at_time(progress, t)
+        checkpoints[str(t)] = None if p is None else {'explored_share': p['explored_share'], 'merged': p['merged']}
+    cpu = cpu_figures(samples, args.window)
+    return dict(
+        robots=summary['robots'], end=summary['end'], sim_s=end, real_s=summary['real_time_s'],
+        speedup=summary['speedup'], explored_share=summary['explored_share'],
+        latencies=latencies, latency_median=statistics.median(latencies) if latencies else None,
+        latency_max=max(latencies) if latencies else None, late=late,
+        never_joinable=sum(r.get('joinable_sim_s') is None for r in rows),
+        merged_end=len(placed), checkpoints=checkpoints,
+        rotation_error_max_deg=max((r['rotation_error_deg'] for r in placed), default=None),
+        corner_error_max_m=max((r['corner_error_m'] for r in placed), default=None),
+        cpu_s_per_sim_s=cpu['cpu_s'] / end if cpu['cpu_s'] is not None and end > 0 else None, **cpu)
+
+
+def _f(v, fmt='{:.1f}') -> str:
+    return '-' if v is None else fmt.format(v)
+
+
+def _times100(v: Optional[float]) -> Optional[float]:   # share -> %, m -> cm
+    return None if v is None else 100.0 * v
+
+
+def _latency_max(latencies: List[float], late: List[float]) -> str:
+    if late and (not latencies or max(late) > max(latencies)):
+        return f'>{max(late):.0f}'
+    return _f(max(latencies) if latencies else None)
+
+
+def _checkpoint(c: Optional[dict]) -> str:
+    if c is None:
+        return '-'
+    share = '-' if c['explored_share'] is None else f"{100 * c['explored_share']:.0f}%"
+    return f"{share} {c['merged']}m"
+
+
+def report(runs: List[dict], args: argparse.Namespace) -> None:
+    at = ' | '.join(f'at {t:g} s' for t in args.at)
+    print(f'\n| robots | seed | sim s (real s, x) | latency median | latency max | merged | {at} | end explored '
+          f'| map_merge cores avg / peak {args.window:g} s | CPU s per sim s | max error deg / cm |')
+    print('|' + '---|' * (10 + len(args.at)))
+    for r in runs:
+        cps = ' | '.join(_checkpoint(r['checkpoints'][str(t)]) for t in args.at)
+        print(f"| {r['robots']} | {r['seed']} | {r['sim_s']:.0f} ({r['real_s']:.0f}, {r['speedup']:g}) "
+              f"| {_f(r['latency_median'])} | {_latency_max(r['latencies'], r['late'])} "
+              f"| {r['merged_end']}/{r['robots']} | {cps} | {_f(_times100(r['explored_share']))} % "
+              f"| {_f(r['cpu_cores_avg'], '{:.2f}')} / {_f(r['cpu_cores_peak'], '{:.2f}')} "
+              f"| {_f(r['cpu_s_per_sim_s'], '{:.3f}')} "
+              f"| {_f(r['rotation_error_max_deg'], '{:.2f}')} / {_f(_times100(r['corner_error_max_m']))} |")
+    print('\n(checkpoints: explored share and robots in the merged map "Nm"; "-": the run had ended or not begun)')
+    print('\n| robots | runs | latency median (all robots) | latency max | robots not merged at the end '
+          '| map_merge cores avg | CPU s per sim s |')
+    print('|---|---|---|---|---|---|---|')
+    for n in sorted({r['robots'] for r in runs}):
+        group = [r for r in runs if r['robots'] == n]
+        lat = [v for r in group for v in r['latencies']]
+        late = [v for r in group for v in r['late']]
+        cores = [r['cpu_cores_avg'] for r in group if r['cpu_cores_avg'] is not None]
+        per_sim = [r['cpu_s_per_sim_s'] for r in group if r['cpu_s_per_sim_s'] is not None]
+        print(f"| {n} | {len(group)} | {_f(statistics.median(lat) if lat else None)} | {_latency_max(lat, late)} "
+              f"| {sum(r['robots'] - r['merged_end'] for r in group)} of {n * len(group)} "
+              f"| {_f(statistics.mean(cores) if cores else None, '{:.2f}')} "
+              f"| {_f(statistics.mean(per_sim) if per_sim else None, '{:.3f}')} |")
+
+
+def main(argv: Optional[List[str]] = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--robots', type=int, nargs='+', default=[3, 6, 12], help='fleet sizes (1..12)')
+    ap.add_argument('--seeds', type=int, nargs='+', default=[1, 2], help='demo --seed values (start poses)')
+    ap.add_argument('--world-seed', type=int, default=0)
+    ap.add_argument('--speedup', type=float, help="demo --speedup (default: the demo's, by fleet size)")
+    ap.add_argument('--limit-sim', type=float, help='demo --limit-sim')
+    ap.add_argument('--limit-wall', type=float, help='demo --limit-wall')
+    ap.add_argument('--at', type=float, nargs='+', default=[60.0, 120.0, 240.0], help='sim-time checkpoints (s)')
+    ap.add_argument('--sample', type=float, default=1.0, help='seconds between CPU samples')
+    ap.add_argument('--window', type=float, default=10.0, help='seconds of the peak CPU window')
+    ap.add_argument('--out', type=Path, default=REPO / 'out' / 'bench_fleet')
+    ap.add_argument('--json', type=Path, help='write every run\'s figures here')
+    args = ap.parse_args(argv)
+    if any(not 1 <= n <= 12 for n in args.robots) or any(s < 0 for s in args.seeds):
+        ap.error('--robots must be in 1..12 and --seeds non-negative')
+    if args.sample <= 0 or args.window <= 0:
+        ap.error('--sample and --window must be positive')
+    runs = []
+    for n in args.robots:
+        for seed in args.seeds:
+            out = (args.out / f'r{n}_s{seed}').resolve()
+            print(f'bench_fleet: {n} robots, seed {seed} -> {out}', flush=True)
+            code, samples = run_demo(n, seed, out, args)
+            try:
+                summary = json.loads((out / 'summary.json').read_text())
+            except (OSError, ValueError):
+                print(f'bench_fleet: the demo wrote no summary (exit {code}); see {out}/demo.log', flush=True)
+                continue
+            r = dict(run_figures(summary, samples, args), seed=seed, out=str(out))
+            runs.append(r)
+            print(f"  {r['end']}; sim {r['sim_s']:.0f} s, latency median {_f(r['latency_median'])} max "
+                  f"{_latency_max(r['latencies'], r['late'])}, merged {r['merged_end']}/{n}, map_merge "
+                  f"{_f(r['cpu_cores_avg'], '{:.2f}')} cores", flush=True)
+    if not runs:
+        sys.exit('bench_fleet: no run produced a summary')
+    report(runs, args)
+    if args.json:
+        args.json.write_text(json.dumps(runs, indent=1))
+
+
+if __name__ == '__main__':
+    main()
