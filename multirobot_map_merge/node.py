@@ -12,7 +12,10 @@ Threads (rospy runs every subscriber on its own thread; callbacks only convert +
   * discovery: at start, then every 1/discovery_rate s;
   * estimation (only when known_init_poses is false): every 1/estimation_rate s, or at once when a robot's first map
     arrives; it keeps the reference robot while that robot stays in the merge, and it is skipped while the robots
-    and their maps are unchanged since the last estimation (same input, same placement);
+    and their maps are unchanged since the last estimation (same input, same placement). Each estimation first
+    re-checks the robots placed by the last one against the union of the others (tracking: a placement is kept,
+    refined, while it passes the acceptance rules, and dropped at once when it does not), then matches the robots
+    not placed against the union of the placed ones (estimation.py);
   * merging: every 1/merging_rate s: the newest maps, the last estimated transforms (kept per robot name, so they
     follow the robot when the list grows), compose, publish (and ~status after a new estimation, so that its
     transforms match the merged map published with it).
