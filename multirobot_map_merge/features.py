@@ -10,7 +10,7 @@ import hashlib
 import logging
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import cv2
@@ -39,10 +39,20 @@ class PreparedGrid:
     free_side: np.ndarray = None  # (H, W, 2) float32 direction towards nearby free space (see free_side_field)
     wall_normals: np.ndarray = None  # (M, 2) free_side at each wall pixel
     known_depth: np.ndarray = None   # (H, W) float32 distance (pixels) of every pixel to the nearest unknown one
+    feature: Optional[str] = None    # the detector describe() runs while keypoints is None
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     @property
     def known_pixels(self) -> int:
         return int((self.work >= 0).sum())
+
+    def describe(self) -> 'PreparedGrid':
+        """Detect keypoints and descriptors now if they were left for later (prepare(..., lazy=True)): a placement
+        that tracking confirms needs none, so a live fleet whose robots are all placed runs no detector."""
+        with self._lock:
+            if self.keypoints is None:
+                self.keypoints, self.descriptors = detect(self.work, self.feature)
+        return self
 
     def nearest(self, pts: np.ndarray):
         """Nearest wall pixel and its distance for each point (distance inf outside the image or with no walls)."""
@@ -129,8 +139,9 @@ def make_detector(kind: str):
     raise ValueError(f"unknown feature type '{kind}' (choose from {', '.join(FEATURE_TYPES)})")
 
 
-def prepare(grid: Grid, work_resolution: float, feature: Optional[str]) -> Optional[PreparedGrid]:
-    """Crop, resample and describe one grid (no keypoints if feature is None); None if no cell is known."""
+def prepare(grid: Grid, work_resolution: float, feature: Optional[str], lazy: bool = False) -> Optional[PreparedGrid]:
+    """Crop, resample and describe one grid (no keypoints if feature is None; with `lazy`, only at describe());
+    None if no cell is known."""
     box = crop_to_known(grid.data)
     if box is None:
         return None
@@ -141,9 +152,7 @@ def prepare(grid: Grid, work_resolution: float, feature: Optional[str]) -> Optio
     px_to_cell = np.array([[1.0 / scale, 0.0, c0 + 0.5 / scale], [0.0, 1.0 / scale, r0 + 0.5 / scale], [0, 0, 1.0]])
     px_to_map = grid.cell_to_map() @ px_to_cell
 
-    keypoints, descriptors = (make_detector(feature).detectAndCompute(feature_image(work), None) if feature
-                              else ((), None))   # no feature: for comparing walls only
-    pts = np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2)
+    pts, descriptors = (None, None) if lazy else detect(work, feature)
 
     occupied = work >= 50
     wall_rows, wall_cols = np.nonzero(occupied)
@@ -158,7 +167,14 @@ def prepare(grid: Grid, work_resolution: float, feature: Optional[str]) -> Optio
         nearest = np.full(work.shape, -1, np.int64)
     side = free_side_field(work)
     return PreparedGrid(work, px_to_map, pts, descriptors, walls, dist, nearest, work_resolution, side,
-                        side[wall_rows, wall_cols].astype(np.float64), known_depth(work))
+                        side[wall_rows, wall_cols].astype(np.float64), known_depth(work), feature)
+
+
+def detect(work: np.ndarray, feature: Optional[str]):
+    """(keypoints (N, 2), descriptors) of a working grid; none without a feature type (walls only)."""
+    keypoints, descriptors = (make_detector(feature).detectAndCompute(feature_image(work), None) if feature
+                              else ((), None))
+    return np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2), descriptors
 
 
 def content_key(grid: Grid) -> str:
@@ -184,7 +200,7 @@ class FeatureCache:
                 self._items.move_to_end(key)
                 self.hits += 1
                 return self._items[key]
-        prepared = prepare(grid, work_resolution, feature)
+        prepared = prepare(grid, work_resolution, feature, lazy=True)
         with self._lock:
             self.misses += 1
             self._items[key] = prepared
@@ -194,21 +210,27 @@ class FeatureCache:
 
 
 
+def map_keypoints(p: PreparedGrid):
+    """p's keypoints as points of its grid's map frame (metres), and their descriptors (detected now if need be)."""
+    p.describe()
+    return tf.apply(p.px_to_map, p.keypoints), p.descriptors
+
+
 def pooled_keypoints(parts, px_to_map: np.ndarray, shape, radius: float = 3.0):
     """Keypoints and descriptors of a union image, pooled from those of the grids it is composed of.
 
-    `parts` are (PreparedGrid, metric transform of its map frame into the union's map frame). Each part's keypoints
-    are brought into the union's pixels (rotation-invariant descriptors stay valid); a keypoint within `radius`
-    pixels of one already taken is the same corner seen again and left out, so that the ratio test still finds
-    one nearest neighbour per corner. No detection runs: the union's keypoints grow with its members."""
+    `parts` are (keypoints in the grid's map frame (metres), descriptors, metric transform of that map frame into
+    the union's). Each part's keypoints are brought into the union's pixels (rotation-invariant descriptors stay
+    valid); a keypoint within `radius` pixels of one already taken is the same corner seen again and left out, so
+    that the ratio test still finds one nearest neighbour per corner. No detection runs on the union."""
     h, w = shape
     taken = np.zeros((h // int(radius) + 1, w // int(radius) + 1), bool)
     points, descriptors = [], []
     to_px = np.linalg.inv(px_to_map)
-    for p, t in parts:
-        if p.descriptors is None or not len(p.keypoints):
+    for keypoints, part_descriptors, t in parts:
+        if part_descriptors is None or not len(keypoints):
             continue
-        pts = tf.apply(to_px @ t @ p.px_to_map, p.keypoints)
+        pts = tf.apply(to_px @ t, keypoints)
         inside = (pts[:, 0] >= 0) & (pts[:, 1] >= 0) & (pts[:, 0] < w) & (pts[:, 1] < h)
         cells = (pts[inside] // radius).astype(np.int64)
         fresh = ~taken[cells[:, 1], cells[:, 0]]
@@ -216,8 +238,7 @@ def pooled_keypoints(parts, px_to_map: np.ndarray, shape, radius: float = 3.0):
         taken[cells[fresh, 1], cells[fresh, 0]] = True
         idx = np.flatnonzero(inside)[fresh]
         points.append(pts[idx])
-        descriptors.append(p.descriptors[idx])
+        descriptors.append(part_descriptors[idx])
     if not points:
         return np.zeros((0, 2)), None
     return np.vstack(points), np.vstack(descriptors)
-

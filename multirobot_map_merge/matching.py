@@ -75,6 +75,7 @@ class PairMatch:
 def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True) -> np.ndarray:
     """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction (or only from
     i to j: j is a union, most of whose keypoints are nowhere in i)."""
+    pi.describe(), pj.describe()
     if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
     norm = cv2.NORM_HAMMING if pi.descriptors.dtype == np.uint8 else cv2.NORM_L2
@@ -371,7 +372,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     light = s.replace(icp_max_points=LIGHT_ICP_POINTS)
     pairs = putative_matches(pi, pj, s.ratio, not onto_union) if descriptors else np.zeros((0, 2), np.int64)
     result.descriptor_matches = len(pairs)
-    p, q = pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]
+    p, q = (pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]) if len(pairs) else (np.zeros((0, 2)),) * 2
 
     def rank(c: Placement):
         # a placement that agrees beats any that does not, however large

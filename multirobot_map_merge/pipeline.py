@@ -18,7 +18,9 @@ import numpy as np
 
 from . import transforms as tf
 from .compose import compose
-from .estimation import Estimate, Progress, SearchMemo, estimate
+from .estimation import Estimate, estimate
+from .growth import Progress
+from .memory import EstimationMemory
 from .features import FeatureCache
 from .grid import Grid
 from .known_poses import InitPose, transforms_from_poses
@@ -32,7 +34,7 @@ class MergingPipeline:
         self.settings = settings or EstimationSettings()
         self.settings.validate()
         self.cache = FeatureCache()
-        self.search_memo = SearchMemo()
+        self.memory = EstimationMemory()   # for a live fleet: see memory.py
         self.grids: List[Optional[Grid]] = []
         self.transforms: List[Optional[np.ndarray]] = []
         self.reference: Optional[int] = None
@@ -53,11 +55,13 @@ class MergingPipeline:
         """Estimate transforms from the grids' content (unknown initial poses); `previous` (transforms of the
         current grids from the last estimate, same reference) are kept while they still hold (tracking.py);
         `progress(settled, total)` is called as grids are placed or set aside; `names` (stable names of the grids,
-        e.g. robot namespaces) let failed searches be remembered from one estimation to the next."""
+        e.g. robot namespaces) let the pipeline's memory skip, in the next estimation, work whose answer cannot have
+        changed much (memory.py)."""
         if preferred_reference is None:
             preferred_reference = self.reference
-        memo = self.search_memo if names is not None else None
-        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress, memo, names)
+        memory = self.memory if names is not None else None
+        result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress, memory,
+                          names)
         self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
         return result
 

@@ -20,6 +20,7 @@ import numpy as np
 from . import transforms as tf
 from .features import PreparedGrid, prepare
 from .grid import Grid
+from .memory import EstimationMemory, unchanged
 from .matching import PairMatch, icp, pair_confidence, plausible, refusal, verify
 from .polish import polish
 from .settings import EstimationSettings
@@ -81,19 +82,33 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
 
 
 def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Sequence[Optional[Grid]],
-          prepared: Sequence[Optional[PreparedGrid]], res: float, s: EstimationSettings,
-          pool: Executor) -> Tuple[Dict[int, np.ndarray], List[Check]]:
+          prepared: Sequence[Optional[PreparedGrid]], res: float, s: EstimationSettings, pool: Executor,
+          memory: EstimationMemory, names: Sequence) -> Tuple[Dict[int, np.ndarray], List[Check]]:
     """The previous placements (same reference, same merged frame) that still hold, refined, and the checks.
-    Empty when the reference itself no longer agrees with the others: then nothing is kept."""
+    Empty when the reference itself no longer agrees with the others: then nothing is kept. A placement confirmed
+    by an earlier estimation whose map has barely changed since (memory.py) stands without a new check."""
     placed = {k: np.asarray(t, float) for k, t in enumerate(previous)
               if t is not None and k < len(prepared) and prepared[k] is not None}
     if reference not in placed or len(placed) < 2:
         return {}, []
     footprints = {k: box for k, box in ((k, footprint(grids[k], t)) for k, t in placed.items()) if box is not None}
+
+    def check(k: int) -> Check:
+        confirmed = memory.checks.get(names[k])
+        if confirmed is not None and np.allclose(confirmed[1], placed[k]) and unchanged(confirmed[0], grids[k]):
+            return Check(k, placed[k], confirmed[2])
+        c = recheck(k, grids, prepared, placed, footprints, res, s)
+        if c.transform is not None:
+            memory.checks.put(names[k], (grids[k], c.transform, c.match))
+        else:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
+            memory.checks.drop(names[k])
+            memory.keypoints.drop(names[k])
+        return c
+
     checks: Dict[int, Check] = {}
     to_check = [k for k in placed if k != reference]
     for _ in range(MAX_PASSES):
-        for c in pool.map(lambda k: recheck(k, grids, prepared, placed, footprints, res, s), to_check):
+        for c in pool.map(check, to_check):
             checks[c.k] = c
         failed = [k for k in to_check if checks[k].transform is None]
         if not failed:
@@ -111,7 +126,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         if k != reference:
             placed[k] = checks[k].transform
     if len(placed) > 1:
-        ref = recheck(reference, grids, prepared, placed, footprints, res, s)
+        ref = check(reference)
         if ref.transform is None:
             log.info('the reference grid %d no longer agrees with the others (%s): placements searched anew',
                      reference, ref.match.reason)

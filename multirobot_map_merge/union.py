@@ -8,14 +8,14 @@ the members' own, pooled (features.pooled_keypoints), so they grow with the grou
 from __future__ import annotations
 
 import math
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Callable, Dict, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
 
 from . import transforms as tf
 from .compose import compose
-from .features import PreparedGrid, crop_to_known, pooled_keypoints, prepare
+from .features import PreparedGrid, crop_to_known, map_keypoints, pooled_keypoints, prepare
 from .grid import Grid
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
@@ -75,8 +75,10 @@ def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarr
 class UnionMap:
     """The composed map of a group's members (grid index -> metric transform into the group's frame)."""
 
-    def __init__(self, resolution: float):
+    def __init__(self, resolution: float, keypoints_of: Callable[[int, PreparedGrid], tuple] = None):
         self.resolution = resolution
+        # member's keypoints in its map frame and descriptors: detected now, or kept from an earlier estimation
+        self.keypoints_of = keypoints_of or (lambda k, part: map_keypoints(part))
         self.members: Dict[int, np.ndarray] = {}
         self.grids: Dict[int, Grid] = {}
         self.parts: Dict[int, PreparedGrid] = {}
@@ -129,8 +131,8 @@ class UnionMap:
             self._prepared = prepare(union, self.resolution, None) if union is not None else None
             if self._prepared is not None:
                 self._prepared.keypoints, self._prepared.descriptors = pooled_keypoints(
-                    [(self.parts[k], self.members[k]) for k in order], self._prepared.px_to_map,
-                    self._prepared.work.shape)
+                    [(*self.keypoints_of(k, self.parts[k]), self.members[k]) for k in order],
+                    self._prepared.px_to_map, self._prepared.work.shape)
         self._prepared_version = self.version
         self._history[self.version] = self._prepared
         for old in sorted(self._history)[:-HISTORY]:

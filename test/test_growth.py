@@ -8,7 +8,7 @@ import pytest
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation import estimate
-from multirobot_map_merge.features import pooled_keypoints, prepare
+from multirobot_map_merge.features import map_keypoints, pooled_keypoints, prepare
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.matching import match_pair
@@ -90,12 +90,13 @@ def test_previous_placements_with_another_reference_are_not_tracked(repo_root):
 def test_pooled_keypoints_count_a_corner_seen_twice_once(repo_root):
     grids, _ = _sample(repo_root, 'three_robots')
     p = prepare(grids[0], 0.05, 'akaze')
-    alone, _ = pooled_keypoints([(p, np.eye(3))], p.px_to_map, p.work.shape)
-    twice, descriptors = pooled_keypoints([(p, np.eye(3)), (p, np.eye(3))], p.px_to_map, p.work.shape)
+    own = map_keypoints(p)
+    alone, _ = pooled_keypoints([(*own, np.eye(3))], p.px_to_map, p.work.shape)
+    twice, descriptors = pooled_keypoints([(*own, np.eye(3)), (*own, np.eye(3))], p.px_to_map, p.work.shape)
     assert len(alone) == len(p.keypoints) and len(twice) == len(alone) and len(descriptors) == len(twice)
     # the same map placed 5 m further along x brings those of its keypoints into the union that land in it
     shift_px = 5.0 / p.resolution
-    shifted, _ = pooled_keypoints([(p, tf.translation(5.0, 0.0))], p.px_to_map, p.work.shape)
+    shifted, _ = pooled_keypoints([(*own, tf.translation(5.0, 0.0))], p.px_to_map, p.work.shape)
     expected = alone[alone[:, 0] + shift_px < p.work.shape[1]] + (shift_px, 0.0)
     assert 0 < len(shifted) < len(alone)
     assert np.allclose(np.sort(shifted[:, 0]), np.sort(expected[:, 0]), atol=1e-6)

@@ -1,0 +1,219 @@
+"""Growing groups of placed grids: every newcomer is matched against the union of a group (estimation stage 3).
+
+A group starts from a seed and grows in rounds. In a round every grid not placed yet is matched against the union of
+the group (union.py) by descriptors only, cheap and in parallel; the accepted ones join, and the next round matches
+the rest against the grown union. A round that adds nobody runs the costly correlation search, on the remaining grids
+smallest first. Work whose answer cannot have changed is skipped: a grid is not matched again against a union that
+has not changed where its last match placed it, and, with an EstimationMemory (a live fleet, memory.py), a grid
+whose map has barely changed is not matched or searched again against a union that has barely grown, and members'
+keypoints are kept until their maps grow.
+"""
+from __future__ import annotations
+
+from concurrent.futures import Executor
+from typing import Callable, Dict, List, Optional, Sequence
+
+import numpy as np
+
+from . import transforms as tf
+from .features import PreparedGrid, map_keypoints
+from .grid import Grid
+from .matching import PairMatch, match_pair, overlap_found
+from .memory import EstimationMemory, unchanged
+from .settings import EstimationSettings
+from .union import UnionMap
+
+SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
+MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
+
+Progress = Callable[[int, int], None]   # (grids settled, grids in all), called as the estimation goes
+
+
+class Group:
+    """Grids placed together: grid index -> metric transform into the frame of the seed grid."""
+
+    def __init__(self, seed: int, grid: Grid, prepared: PreparedGrid, res: float,
+                 keypoints_of: Optional[Callable] = None):
+        self.seed = seed
+        self.union = UnionMap(res, keypoints_of)
+        self.union.add(seed, grid, prepared, np.eye(3))
+        self.links: Dict[int, PairMatch] = {}   # how each member but the seed joined
+
+    @property
+    def members(self) -> Dict[int, np.ndarray]:
+        return self.union.members
+
+    def join(self, k: int, grid: Grid, prepared: PreparedGrid, m: PairMatch) -> None:
+        """Grid k joins, placed by m (metric: map k -> the group's frame)."""
+        self.union.add(k, grid, prepared, m.transform_m)
+        self.links[k] = self.paired(m, k)
+
+    def absorb(self, other: 'Group', other_to_self: np.ndarray, m: PairMatch) -> None:
+        """Every member of another group joins, placed by `other_to_self` (metric: its frame -> this frame), as
+        the match m of the two unions found."""
+        self.union.absorb(other.union, other_to_self)
+        self.links.update(other.links)
+        self.links[other.seed] = self.paired(m, other.seed)
+
+    def paired(self, m: PairMatch, k: int) -> PairMatch:
+        """m (member k placed onto the union) restated as a pair of k and the member it overlaps most."""
+        anchor = self.union.anchor(k)
+        out = PairMatch(k, anchor, m.matches, m.inliers, m.confidence, m.descriptor_matches, m.descriptor_inliers,
+                        m.accepted, m.reason, m.best)
+        out.transform_m = tf.inverse(self.members[anchor]) @ self.members[k]
+        return out
+
+
+class Grower:
+    """Grows groups over one estimation; owns the bookkeeping of which grid was tried against which union."""
+
+    def __init__(self, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
+                 settings: EstimationSettings, pool: Executor, reference: Optional[int],
+                 progress: Optional[Progress], memory: Optional[EstimationMemory] = None,
+                 names: Optional[Sequence] = None):
+        self.grids, self.prepared, self.res, self.s, self.pool = grids, prepared, res, settings, pool
+        self.reference = reference
+        self.progress = progress
+        self.total = sum(p is not None for p in prepared)
+        self.tried: Dict[tuple, int] = {}       # (grid, group id) -> union version of the last descriptor match
+        self.memory = memory if memory is not None else EstimationMemory()   # one estimation's own, offline
+        self.names = list(names) if names is not None else list(range(len(prepared)))
+        self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
+        self.contradicting: set = set()          # grids that overlap a group's union but contradict it
+        self.settled = 0
+
+    def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
+        """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
+        barely changed: a union needs them for its pooled keypoints, and detection is the costly part."""
+        name = self.names[k]
+        kept = self.memory.keypoints.get(name)
+        if kept is not None and unchanged(kept[0], self.grids[k]):
+            return kept[1], kept[2]
+        points, descriptors = map_keypoints(part)
+        self.memory.keypoints.put(name, (self.grids[k], points, descriptors))
+        return points, descriptors
+
+    def group(self, seed: int) -> Group:
+        return Group(seed, self.grids[seed], self.prepared[seed], self.res, self.keypoints_of)
+
+    def match(self, k: int, group: Group, search: bool) -> PairMatch:
+        """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
+        one is matched as a pair."""
+        return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
+                          onto_union=len(group.members) > 1, descriptors=not search)
+
+    def grow(self, group: Group, unplaced: List[int]) -> None:
+        """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union."""
+        while unplaced:
+            batch = [k for k in unplaced if self._worth_matching(k, group)]
+            if batch:
+                known = group.union.known_pixels   # prepares the union once, before the workers share it
+                members = frozenset(self.names[m] for m in group.members)
+                for k in batch:
+                    self.tried[(k, id(group))] = group.union.version
+                results = list(self.pool.map(lambda k: self.match(k, group, search=False), batch))
+                added = self._admit(group, unplaced, results)
+                for m in results:
+                    if not m.accepted:
+                        self.memory.tries.put((self.names[m.i], members),
+                                              (self.grids[m.i], known, m.i in self.contradicting))
+                if added:
+                    continue
+            if not self._search(group, unplaced):
+                return
+
+    def _worth_matching(self, k: int, group: Group) -> bool:
+        """Whether grid k is to be matched against the group's union (again): not if it was matched against this
+        union already, nor if its last match found where it overlaps the union (and contradicts it) and the union
+        has not changed there since (the same descriptors against the same walls give the same verdict)."""
+        tried = self.tried.get((k, id(group)))
+        if tried is None:
+            last = self.memory.tries.get((self.names[k], frozenset(self.names[m] for m in group.members)))
+            # matched in an earlier estimation against these members: again once either has changed enough
+            if last is None or not unchanged(last[0], self.grids[k]) or group.union.known_pixels > MATCH_GROWTH * last[1]:
+                return True
+            if last[2]:
+                self.contradicting.add(k)
+            return False
+        if tried == group.union.version:
+            return False
+        last = self.refused.get(k)
+        if last is None or last.j != group.seed or not overlap_found(last.best, self.s, len(group.members) > 1):
+            return True
+        return group.union.changed_under(self.prepared[k], last.best.transform, since=tried)
+
+    def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
+        added = False
+        for m in sorted(results, key=lambda m: -m.weight):
+            if m.accepted:
+                group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
+                unplaced.remove(m.i)
+                self.refused.pop(m.i, None)
+                self._settle(1)
+                added = True
+            else:
+                self.refused[m.i] = m
+                if len(group.members) > 1 and m.best is not None and m.best.support >= self.s.min_support \
+                        and m.best.overlap_m2 >= self.s.min_overlap_m2:
+                    self.contradicting.add(m.i)
+        return added
+
+    def _search(self, group: Group, unplaced: List[int]) -> bool:
+        """The correlation search, smallest grid first, on grids the union has grown for since their last search;
+        stops at the first grid it places (the others are matched against the grown union first)."""
+        known = group.union.known_pixels
+        members = frozenset(self.names[m] for m in group.members)
+        for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
+            key = (self.names[k], members)
+            last = self.memory.searches.get(key)
+            if last is not None and unchanged(last[0], self.grids[k]) and known < SEARCH_GROWTH * last[1]:
+                continue   # searched before (maybe in an earlier estimation), and neither has changed much since
+            refused = self.refused.get(k)
+            if refused is not None and refused.j == group.seed \
+                    and overlap_found(refused.best, self.s, len(group.members) > 1):
+                continue   # the descriptors found the overlap and the maps disagree there
+            self.memory.searches.put(key, (self.grids[k], known))
+            m = self.match(k, group, search=True)
+            if self._admit(group, unplaced, [m]):
+                return True
+        return False
+
+    def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
+        """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
+        grows again with the grids still unplaced."""
+        changed = True
+        while changed and len(groups) > 1:
+            changed = False
+            groups.sort(key=lambda g: -len(g.members))
+            for a in range(len(groups)):
+                for b in range(a + 1, len(groups)):
+                    big, small = groups[a], groups[b]
+                    if len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version:
+                        continue   # a single grid was matched against this union already
+                    m = self._match_groups(small, big)
+                    if m.accepted:
+                        # the merged frame stays that of the preferred reference's group
+                        if self.reference in small.members:
+                            small.absorb(big, tf.inverse(m.transform_m), m)
+                            groups[a] = small
+                        else:
+                            big.absorb(small, m.transform_m, m)
+                        groups.pop(b)
+                        self.grow(groups[a], unplaced)
+                        changed = True
+                        break
+                if changed:
+                    break
+        return groups
+
+    def _match_groups(self, small: Group, big: Group) -> PairMatch:
+        self.tried[(small.seed, id(big))] = big.union.version
+        return match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
+                          onto_union=len(big.members) > 1)
+
+    def _settle(self, n: int) -> None:
+        self.settled += n
+        if self.progress is not None:
+            self.progress(min(self.settled, self.total), self.total)
+
+

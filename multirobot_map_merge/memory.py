@@ -1,0 +1,87 @@
+"""What one estimation leaves to the next in a live fleet (by robot name): work that need not be done again.
+
+Robot maps grow a little between two estimations and their frames do not move. A verdict on a map (its placement
+holds; it matched nothing against a union; its keypoints) therefore stands until the map has grown by a share or
+been revised (cells it knew changed: a SLAM failure turns or shifts them). `changed` measures both. The merging
+pipeline owns one EstimationMemory; the offline tool, estimating once, uses none.
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from typing import Hashable, Optional, Tuple
+
+import numpy as np
+
+from .grid import Grid
+
+GROWTH = 0.1      # share of a map's known cells that may be added before a verdict on it is made again
+REVISION = 0.02   # share of its known cells that may change before a verdict on it is made again
+
+
+def changed(before: Grid, after: Grid) -> Tuple[float, float]:
+    """(grown, revised): the share of `before`'s known cells that `after` knows in addition, and the share of them
+    whose value changed class (unknown, free, occupied). inf when the two cannot be compared cell by cell."""
+    if before is after:
+        return 0.0, 0.0
+    if before.resolution != after.resolution or before.origin[2] != after.origin[2]:
+        return math.inf, math.inf
+    dx = (before.origin[0] - after.origin[0]) / after.resolution
+    dy = (before.origin[1] - after.origin[1]) / after.resolution
+    if abs(dx - round(dx)) > 1e-3 or abs(dy - round(dy)) > 1e-3:
+        return math.inf, math.inf
+    dx, dy = int(round(dx)), int(round(dy))
+    old_known = int((before.data >= 0).sum())
+    if old_known == 0:
+        return math.inf, math.inf
+    new_known = int((after.data >= 0).sum())
+    h, w = before.data.shape
+    r0, c0 = max(0, -dy), max(0, -dx)
+    r1, c1 = min(h, after.height - dy), min(w, after.width - dx)
+    revised = old_known   # cells of before outside after count as revised
+    if r1 > r0 and c1 > c0:
+        old = _classes(before.data[r0:r1, c0:c1])
+        new = _classes(after.data[r0 + dy:r1 + dy, c0 + dx:c1 + dx])
+        known = old >= 0
+        revised = old_known - int(known.sum()) + int((old[known] != new[known]).sum())
+    return max(new_known - old_known, 0) / old_known, revised / old_known
+
+
+def _classes(data: np.ndarray) -> np.ndarray:
+    return np.where(data < 0, -1, np.where(data >= 50, 1, 0)).astype(np.int8)
+
+
+def unchanged(before: Optional[Grid], after: Grid) -> bool:
+    if before is None:
+        return False
+    grown, revised = changed(before, after)
+    return grown <= GROWTH and revised <= REVISION
+
+
+class Store:
+    """A bounded dictionary, oldest entries dropped first."""
+
+    def __init__(self, capacity: int = 4096):
+        self._items: "OrderedDict[Hashable, tuple]" = OrderedDict()
+        self._capacity = capacity
+
+    def get(self, key: Hashable) -> Optional[tuple]:
+        return self._items.get(key)
+
+    def put(self, key: Hashable, value: tuple) -> None:
+        self._items[key] = value
+        self._items.move_to_end(key)
+        while len(self._items) > self._capacity:
+            self._items.popitem(last=False)
+
+    def drop(self, key: Hashable) -> None:
+        self._items.pop(key, None)
+
+
+class EstimationMemory:
+    """checks: name -> (grid, transform) of its last placement that held; keypoints: name -> (grid, points in its
+    map frame, descriptors); tries: (name, union member names) -> (grid, union known pixels) of a failed match;
+    searches: the same for failed correlation searches."""
+
+    def __init__(self) -> None:
+        self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
