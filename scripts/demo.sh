@@ -18,6 +18,7 @@
 #   --limit-sim S       give up after S s of sim time (default 1200)
 #   --limit-wall S      give up after S s of real time (default 240; 900 for more than 6 robots)
 #   --out DIR           output directory (default out/demo)
+#   --record FILE.bag   also record the robots' maps, map updates and map_merge's status into a rosbag
 #   --offline [NAME]    instead: merge the sample maps data/samples/NAME (default three_robots) offline and report
 #                       their placement error (no ROS master)
 # Run through scripts/env.sh (make demo does).
@@ -29,8 +30,8 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 set -- $*
 
 robots=3 world="" world_seed=0 seed=0 speedup="" coordinate=true limit_sim=1200 limit_wall=""
-out="$repo/out/demo" offline="" scenario=three_robots
-usage() { sed -n '2,23p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+out="$repo/out/demo" offline="" scenario=three_robots record=""
+usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 need() { [ $# -ge 2 ] && [ -n "$2" ] || { echo "demo: $1 needs a value" >&2; exit 2; }; }
 while [ $# -gt 0 ]; do
   opt=$1 val=""
@@ -45,6 +46,7 @@ while [ $# -gt 0 ]; do
     --limit-sim) need "$@"; limit_sim=$2; shift;;
     --limit-wall) need "$@"; limit_wall=$2; shift;;
     --out) need "$@"; out=$2; shift;;
+    --record) need "$@"; record=$2; shift;;
     --offline) offline=1; if [ $# -ge 2 ] && [[ $2 != --* ]]; then scenario=$2; shift; fi;;
     -h|--help) usage; exit 0;;
     *) echo "demo: unknown option '$1' (see --help)" >&2; exit 2;;
@@ -83,6 +85,14 @@ rm -f "$out/summary.txt" "$out/summary.json"
 echo "demo: $robots robots, world ${world:-generated (seed $world_seed)}, seed $seed, speed-up $speedup," \
      "coordination $coordinate; log in $out/roslaunch.log"
 set +e
+rec_pid=""
+if [ -n "$record" ]; then
+  mkdir -p "$(dirname "$record")"
+  # once the master answers; the maps are latched, so nothing published before is lost
+  ( for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
+    exec rosbag record -q -O "$record" -e '/robot_[0-9]+/map(_updates)?|/map_merge/map_merge/status' ) &
+  rec_pid=$!
+fi
 # Hard stop a little after the supervisor's own real-time limit, whatever happens.
 timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall') + 40))")" \
   roslaunch -p "$port" multirobot_map_merge demo.launch num_robots:="$robots" world:="$world" \
@@ -90,6 +100,10 @@ timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall'
     limit_sim:="$limit_sim" limit_wall:="$limit_wall" 2>&1 \
   | tee "$out/roslaunch.log" | grep --line-buffered -E '^\[demo\]|^demo:|has died|FATAL|ERROR|Traceback' \
   | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'
+if [ -n "$rec_pid" ]; then
+  pkill -INT -P "$rec_pid" 2>/dev/null; kill -INT "$rec_pid" 2>/dev/null; wait "$rec_pid" 2>/dev/null
+  echo "demo: maps recorded in $record"
+fi
 set -e
 if [ ! -f "$out/summary.txt" ]; then
   echo "demo: the demo ended without a summary; see $out/roslaunch.log and the node logs in \$ROS_LOG_DIR" >&2
