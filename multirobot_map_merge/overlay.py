@@ -1,0 +1,148 @@
+"""A picture of a merge: every robot's map in its own colour where it was placed, with a legend.
+
+Free space is tinted with the robot's colour, walls are drawn in the full colour over all tints, so which map
+went where (and whether two maps' walls coincide) shows at a glance. The legend names each robot (excluded ones
+marked and listed) and gives the confidence of every pair used to place the maps. Pure: numpy + OpenCV.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, List, Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from . import transforms as tf
+from .compose import warp_into
+from .grid import MAX_CELLS, UNKNOWN, Grid
+from .mapio import save_image
+
+# BGR; distinct on white and on each other (Tableau 10)
+PALETTE = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148),
+           (75, 86, 140), (194, 119, 227), (34, 189, 188), (207, 190, 23), (127, 127, 127)]
+BACKGROUND = (205, 205, 205)   # unknown: map_saver's grey
+FREE_TINT = 0.3                # share of the robot colour in its free cells
+FREE_MAX, OCCUPIED_MIN = 25, 65  # map_saver's thresholds
+MAX_SIDE = 3000                # the picture is scaled down beyond this many pixels
+
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_WALL_KERNEL = np.ones((3, 3), np.uint8)
+_LINE = 18
+
+
+@dataclass(frozen=True)
+class UsedPair:
+    a: int
+    b: int
+    confidence: float
+
+
+def used_pairs(pairs: Iterable, transforms: Sequence[Optional[np.ndarray]]) -> List[UsedPair]:
+    """Accepted pairs whose maps are both placed (as the node's ~status `used`), from PairMatch-like objects
+    (i, j, accepted, confidence)."""
+    return [UsedPair(p.i, p.j, float(p.confidence)) for p in pairs
+            if p.accepted and transforms[p.i] is not None and transforms[p.j] is not None]
+
+
+def colour(k: int) -> Tuple[int, int, int]:
+    return PALETTE[k % len(PALETTE)]
+
+
+def _canvas_geometry(placed: Sequence[Tuple[Grid, np.ndarray]]) -> Tuple[np.ndarray, float, int, int]:
+    """(merged -> canvas cell transform, resolution, width, height) holding every placed grid."""
+    resolution = min(g.resolution for g, _ in placed)
+    corners = np.vstack([tf.apply(t @ g.cell_to_map(), np.array(
+        [[0, 0], [g.width, 0], [0, g.height], [g.width, g.height]], float)) for g, t in placed])
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    extent = max(hi[0] - lo[0], hi[1] - lo[1], resolution)
+    resolution = max(resolution, extent / MAX_SIDE)     # keep the picture (and its memory) bounded
+    width, height = (max(int(math.ceil(v / resolution)), 1) for v in (hi - lo))
+    while width * height > MAX_CELLS:
+        resolution *= 2.0
+        width, height = (max(int(math.ceil(v / resolution)), 1) for v in (hi - lo))
+    return tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1]), resolution, width, height
+
+
+def _draw_maps(placed: Sequence[Tuple[int, Grid, np.ndarray]]) -> np.ndarray:
+    """BGR image (row 0 = top) of the placed grids: tinted free space, then walls on top."""
+    to_canvas, _, width, height = _canvas_geometry([(g, t) for _, g, t in placed])
+    image = np.empty((height, width, 3), np.uint8)
+    image[:] = BACKGROUND
+    tinted = np.zeros((height, width), bool)
+    wall_owner = np.full((height, width), -1, np.int16)   # walls go on top of every tint: drawn last
+    for k, grid, t in placed:
+        warped = np.full((height, width), UNKNOWN, np.int8)
+        warp_into(warped, grid.data, to_canvas @ t @ grid.cell_to_map())
+        free = (warped >= 0) & (warped <= FREE_MAX)
+        # white under the first tint: a free cell seen by one robot reads as that robot's pale colour, by
+        # several as their mixture
+        base = np.where(tinted[free][:, None], image[free].astype(np.float32), np.float32(255.0))
+        image[free] = ((1.0 - FREE_TINT) * base + FREE_TINT * np.array(colour(k), np.float32)).astype(np.uint8)
+        tinted |= free
+        # one-cell walls would vanish among the tints: thicken them by a pixel
+        wall = cv2.dilate((warped >= OCCUPIED_MIN).view(np.uint8), _WALL_KERNEL).view(bool)
+        wall_owner[wall] = k
+    for k, _, _ in placed:
+        image[wall_owner == k] = colour(k)
+    return np.ascontiguousarray(image[::-1])
+
+
+def _legend_lines(names: Sequence[str], placed: Sequence[bool],
+                  pairs: Sequence[UsedPair]) -> List[Tuple[str, Optional[Tuple[int, int, int]]]]:
+    lines: List[Tuple[str, Optional[Tuple[int, int, int]]]] = [('robots', None)]
+    for k, name in enumerate(names):
+        lines.append((name if placed[k] else f'{name} (excluded)', colour(k)))
+    excluded = [n for n, p in zip(names, placed) if not p]
+    lines.append((f'excluded: {", ".join(excluded) if excluded else "none"}', None))
+    if pairs:
+        lines.append(('pairs used (confidence)', None))
+        lines.extend((f'{names[p.a]} - {names[p.b]}: {p.confidence:.2f}', None) for p in pairs)
+    return lines
+
+
+def _draw_legend(lines: Sequence[Tuple[str, Optional[Tuple[int, int, int]]]], height: int) -> np.ndarray:
+    scale = 0.45
+    text_w = max(cv2.getTextSize(t, _FONT, scale, 1)[0][0] for t, _ in lines)
+    panel = np.full((max(height, _LINE * (len(lines) + 1)), text_w + 44, 3), 255, np.uint8)
+    for n, (text, swatch) in enumerate(lines):
+        y = _LINE * (n + 1)
+        x = 10
+        if swatch is not None:
+            cv2.rectangle(panel, (x, y - 11), (x + 14, y + 1), swatch, -1)
+            x += 22
+        cv2.putText(panel, text, (x, y), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    return panel
+
+
+def render_overlay(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.ndarray]],
+                   names: Sequence[str], pairs: Sequence[UsedPair] = ()) -> np.ndarray:
+    """BGR picture: the placed grids (metric transforms: grid map frame -> merged frame) in their colours, +y up,
+    and the legend on the right. A grid without a transform (or without a map) is listed as excluded."""
+    if not (len(grids) == len(transforms) == len(names)):
+        raise ValueError(f'{len(grids)} grids, {len(transforms)} transforms, {len(names)} names')
+    placed = [(k, g, np.asarray(t, float)) for k, (g, t) in enumerate(zip(grids, transforms))
+              if g is not None and t is not None and not g.is_empty()]
+    is_placed = [False] * len(grids)
+    for k, _, _ in placed:
+        is_placed[k] = True
+    maps = _draw_maps(placed) if placed else np.full((200, 200, 3), BACKGROUND, np.uint8)
+    legend = _draw_legend(_legend_lines(names, is_placed, pairs), maps.shape[0])
+    if legend.shape[0] > maps.shape[0]:
+        pad = np.empty((legend.shape[0] - maps.shape[0], maps.shape[1], 3), np.uint8)
+        pad[:] = 255
+        maps = np.vstack([maps, pad])
+    return np.hstack([maps, legend])
+
+
+def overlay_path(png_path: str) -> str:
+    """Where the overlay of a merge previewed at `png_path` goes: beside it, `<stem>_overlay.png`."""
+    stem = png_path[:-4] if png_path.lower().endswith('.png') else png_path
+    return stem + '_overlay.png'
+
+
+def save_overlay(path: str, grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.ndarray]],
+                 names: Sequence[str], pairs: Sequence[UsedPair] = ()) -> str:
+    """Render the overlay (see render_overlay) and write it as PNG; returns the path. The demo calls this with
+    the robots' final maps and their placements from map_merge's ~status."""
+    return save_image(render_overlay(grids, transforms, names, pairs), path)
