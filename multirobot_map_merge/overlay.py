@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, List, Optional, Sequence, Tuple
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -146,3 +146,15 @@ def save_overlay(path: str, grids: Sequence[Optional[Grid]], transforms: Sequenc
     """Render the overlay (see render_overlay) and write it as PNG; returns the path. The demo calls this with
     the robots' final maps and their placements from map_merge's ~status."""
     return save_image(render_overlay(grids, transforms, names, pairs), path)
+
+
+def save_named_overlay(path: str, maps: Dict[str, Grid], poses: Dict[str, Tuple[float, float, float]],
+                       pairs: Iterable[Tuple[str, str, float]] = ()) -> str:
+    """The overlay from robot names: `poses[name]` = (x, y, yaw) of the robot's map frame in the merged frame
+    (e.g. from map_merge's ~status; robots without one are excluded), `pairs` = (name, name, confidence) of the
+    pairs used. Robots are listed in name order. This is what the live demo calls."""
+    names = sorted(maps)
+    index = {n: k for k, n in enumerate(names)}
+    transforms = [tf.rigid(*poses[n]) if n in poses else None for n in names]
+    used = [UsedPair(index[a], index[b], float(c)) for a, b, c in pairs if a in index and b in index]
+    return save_overlay(path, [maps[n] for n in names], transforms, names, used)

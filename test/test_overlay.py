@@ -88,3 +88,15 @@ def test_merge_maps_writes_the_overlay_beside_the_preview(repo_root, tmp_path):
         assert (img == colour(k)).all(axis=2).sum() > 200
     # not a terminal: no progress line in the output
     assert '\r' not in proc.stderr
+
+
+def test_named_overlay_places_by_pose_and_excludes_robots_without_one(tmp_path):
+    from multirobot_map_merge.overlay import save_named_overlay
+    maps = {'robot_2': room(), 'robot_1': room(), 'robot_3': room()}
+    path = save_named_overlay(str(tmp_path / 'o.png'), maps, {'robot_1': (0.0, 0.0, 0.0), 'robot_2': (10.0, 0.0, 0.0)},
+                              [('robot_1', 'robot_2', 2.0), ('robot_1', 'ghost', 1.0)])
+    img = cv2.imread(path)
+    # name order: robot_1 colour 0 on the left, robot_2 colour 1 on the right, robot_3 excluded (swatch only)
+    assert (img[:, :60] == colour(0)).all(axis=2).sum() > 100
+    assert (img[:, 100:160] == colour(1)).all(axis=2).sum() > 100
+    assert (img[:, :160] == colour(2)).all(axis=2).sum() == 0
