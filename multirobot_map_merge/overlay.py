@@ -15,7 +15,8 @@ import numpy as np
 
 from . import transforms as tf
 from .compose import warp_into
-from .grid import MAX_CELLS, UNKNOWN, Grid
+from .features import crop_to_known
+from .grid import UNKNOWN, Grid
 from .mapio import save_image
 
 # BGR; distinct on white and on each other (Tableau 10)
@@ -25,6 +26,7 @@ BACKGROUND = (205, 205, 205)   # unknown: map_saver's grey
 FREE_TINT = 0.3                # share of the robot colour in its free cells
 FREE_MAX, OCCUPIED_MIN = 25, 65  # map_saver's thresholds
 MAX_SIDE = 3000                # the picture is scaled down beyond this many pixels
+MARGIN = 5                     # pixels of background around the maps
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _WALL_KERNEL = np.ones((3, 3), np.uint8)
@@ -49,42 +51,70 @@ def colour(k: int) -> Tuple[int, int, int]:
     return PALETTE[k % len(PALETTE)]
 
 
-def _canvas_geometry(placed: Sequence[Tuple[Grid, np.ndarray]]) -> Tuple[np.ndarray, float, int, int]:
-    """(merged -> canvas cell transform, resolution, width, height) holding every placed grid."""
-    resolution = min(g.resolution for g, _ in placed)
-    corners = np.vstack([tf.apply(t @ g.cell_to_map(), np.array(
-        [[0, 0], [g.width, 0], [0, g.height], [g.width, g.height]], float)) for g, t in placed])
+@dataclass
+class _Part:
+    """The known part of one placed grid: its cells and the transform of its cell corners into the merged frame."""
+    k: int
+    data: np.ndarray
+    to_merged: np.ndarray
+    resolution: float
+
+
+def _parts(placed: Sequence[Tuple[int, Grid, np.ndarray]]) -> List[_Part]:
+    parts = []
+    for k, grid, t in placed:
+        box = crop_to_known(grid.data, margin=0)
+        if box is not None:
+            r0, r1, c0, c1 = box
+            parts.append(_Part(k, grid.data[r0:r1, c0:c1], t @ grid.cell_to_map() @ tf.translation(c0, r0),
+                               grid.resolution))
+    return parts
+
+
+def _known_hull(data: np.ndarray) -> np.ndarray:
+    """(N, 2) cell-corner points whose convex hull holds every known cell."""
+    points = cv2.findNonZero((data >= 0).view(np.uint8))
+    hull = cv2.convexHull(points).reshape(-1, 2).astype(float)
+    return np.vstack([hull + offset for offset in ((0, 0), (1, 0), (0, 1), (1, 1))])
+
+
+def _canvas_geometry(parts: Sequence[_Part]) -> Tuple[np.ndarray, int, int]:
+    """(merged -> canvas cell transform, width, height) holding every part, with a margin of MARGIN pixels."""
+    resolution = min(p.resolution for p in parts)
+    # the hull of the known cells, not the grid's rectangle: a rotated map's corners are mostly unknown
+    corners = np.vstack([tf.apply(p.to_merged, _known_hull(p.data)) for p in parts])
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     extent = max(hi[0] - lo[0], hi[1] - lo[1], resolution)
     resolution = max(resolution, extent / MAX_SIDE)     # keep the picture (and its memory) bounded
-    width, height = (max(int(math.ceil(v / resolution)), 1) for v in (hi - lo))
-    while width * height > MAX_CELLS:
-        resolution *= 2.0
-        width, height = (max(int(math.ceil(v / resolution)), 1) for v in (hi - lo))
-    return tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1]), resolution, width, height
+    width, height = (int(math.ceil(v / resolution)) + 2 * MARGIN for v in (hi - lo))
+    return tf.translation(MARGIN, MARGIN) @ tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1]), \
+        width, height
 
 
 def _draw_maps(placed: Sequence[Tuple[int, Grid, np.ndarray]]) -> np.ndarray:
-    """BGR image (row 0 = top) of the placed grids: tinted free space, then walls on top."""
-    to_canvas, _, width, height = _canvas_geometry([(g, t) for _, g, t in placed])
+    """BGR image (row 0 = top) of the known parts of the placed grids: tinted free space, then walls on top."""
+    parts = _parts(placed)
+    if not parts:
+        return np.full((200, 200, 3), BACKGROUND, np.uint8)
+    to_canvas, width, height = _canvas_geometry(parts)
     image = np.empty((height, width, 3), np.uint8)
     image[:] = BACKGROUND
     tinted = np.zeros((height, width), bool)
     wall_owner = np.full((height, width), -1, np.int16)   # walls go on top of every tint: drawn last
-    for k, grid, t in placed:
+    for part in parts:
         warped = np.full((height, width), UNKNOWN, np.int8)
-        warp_into(warped, grid.data, to_canvas @ t @ grid.cell_to_map())
+        warp_into(warped, part.data, to_canvas @ part.to_merged)
         free = (warped >= 0) & (warped <= FREE_MAX)
         # white under the first tint: a free cell seen by one robot reads as that robot's pale colour, by
         # several as their mixture
         base = np.where(tinted[free][:, None], image[free].astype(np.float32), np.float32(255.0))
-        image[free] = ((1.0 - FREE_TINT) * base + FREE_TINT * np.array(colour(k), np.float32)).astype(np.uint8)
+        image[free] = ((1.0 - FREE_TINT) * base + FREE_TINT * np.array(colour(part.k), np.float32)).astype(np.uint8)
         tinted |= free
         # one-cell walls would vanish among the tints: thicken them by a pixel
         wall = cv2.dilate((warped >= OCCUPIED_MIN).view(np.uint8), _WALL_KERNEL).view(bool)
-        wall_owner[wall] = k
-    for k, _, _ in placed:
-        image[wall_owner == k] = colour(k)
+        wall_owner[wall] = part.k
+    for part in parts:
+        image[wall_owner == part.k] = colour(part.k)
     return np.ascontiguousarray(image[::-1])
 
 
@@ -126,7 +156,7 @@ def render_overlay(grids: Sequence[Optional[Grid]], transforms: Sequence[Optiona
     is_placed = [False] * len(grids)
     for k, _, _ in placed:
         is_placed[k] = True
-    maps = _draw_maps(placed) if placed else np.full((200, 200, 3), BACKGROUND, np.uint8)
+    maps = _draw_maps(placed)
     legend = _draw_legend(_legend_lines(names, is_placed, pairs), maps.shape[0])
     if legend.shape[0] > maps.shape[0]:
         pad = np.empty((legend.shape[0] - maps.shape[0], maps.shape[1], 3), np.uint8)
