@@ -1,4 +1,4 @@
-"""merge_maps: merge map_server maps offline (no roscore needed).
+"""merge_maps: merge map_server maps, or the robot maps of a rosbag, offline (no roscore needed).
 
     merge_maps [--confidence C] [--feature NAME] [--known-poses POSES.yaml [--legacy-cell-poses]]
                [--output PREFIX] [--png FILE] [--transforms-json FILE] MAP.yaml...
@@ -49,11 +49,12 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('maps', nargs='*', metavar='MAP.yaml')
-    ap.add_argument('--bag', metavar='FILE.bag', help='merge the robot maps recorded in a rosbag instead of map files')
+    ap.add_argument('--bag', metavar='FILE.bag', help='merge the robot maps recorded in a rosbag, not map files')
     ap.add_argument('--at', type=float, metavar='SECONDS',
-                    help='with --bag: the maps as they were this many seconds after the bag\'s start (default: its end)')
+                    help="with --bag: the maps as they were this many seconds after the bag's start (default: its end)")
     ap.add_argument('--topic-suffix', metavar='NAME',
-                    help='with --bag: last name component of the robot map topics (default map; updates on NAME_updates)')
+                    help='with --bag: last name component of the robot map topics (default map; updates on '
+                         'NAME_updates)')
     ap.add_argument('--confidence', type=float, default=defaults.confidence,
                     help='confidence inliers / (8 + 0.3 matches) a pair needs, counted on verified wall correspondences '
                          '(default %(default)s as the C++ node; up to about 3.3 asks for more agreement)')
