@@ -65,6 +65,7 @@ class TerminalProgress:
         self._total: Optional[int] = None
         self._start = clock()
         self._shown = 0                   # length of the line on screen (0: nothing shown)
+        self._text = ''                   # the line on screen
         self._stop = threading.Event()
         self._ticker: Optional[threading.Thread] = None
 
@@ -86,6 +87,9 @@ class TerminalProgress:
             return
         text = self.line()
         with self._lock:
+            if text == self._text:
+                return
+            self._text = text
             pad = max(self._shown - len(text), 0)
             self.stream.write('\r' + text + ' ' * pad)
             self.stream.flush()
@@ -97,7 +101,7 @@ class TerminalProgress:
             if self._shown:
                 self.stream.write('\r' + ' ' * self._shown + '\r')
                 self.stream.flush()
-                self._shown = 0
+                self._shown, self._text = 0, ''
 
     def _tick(self) -> None:
         while not self._stop.wait(self.interval):

@@ -1,5 +1,6 @@
 """merge_maps' terminal progress: the estimation hook on the settings, and the throttled one-line printer."""
 import io
+import re
 import time
 
 from multirobot_map_merge.progress import TerminalProgress, attach, no_progress, progress_of
@@ -76,3 +77,28 @@ def test_the_ticker_redraws_during_long_work_and_erases_the_line_at_the_end():
     assert 'estimating: 1/3 pairs' in text
     assert text.endswith('\r') and text.rstrip('\r ').count('\r') >= 1
     assert '\n' not in text
+
+
+def test_merge_maps_passes_a_terminal_printer_that_the_estimation_reaches(repo_root, tmp_path, monkeypatch):
+    """What the estimation will do: call progress_of(settings)(done, total); on a terminal merge_maps shows it."""
+    from multirobot_map_merge import cli
+    from multirobot_map_merge.pipeline import MergingPipeline
+
+    real_estimate = MergingPipeline.estimate
+
+    def reporting_estimate(self, *args, **kwargs):
+        report = progress_of(self.settings)
+        for done in range(3):
+            report(done, 3)
+            time.sleep(0.6)
+        return real_estimate(self, *args, **kwargs)
+
+    monkeypatch.setattr(MergingPipeline, 'estimate', reporting_estimate)
+    err = Tty()
+    monkeypatch.setattr('sys.stderr', err)
+    maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'chain3').glob('map_*.yaml'))
+    assert cli.main(['--output', str(tmp_path / 'm'), *maps]) == 0
+    text = err.getvalue()
+    assert re.search(r'\rmerge_maps: estimating: [12]/3 pairs, \d+ s', text), repr(text)
+    # the line is erased before the next message
+    assert re.search(r'\r +\rmerge_maps: 3 of 3 maps placed', text)
