@@ -29,7 +29,7 @@ def write_bag(path, entries):
 
 
 def grid(value=0, shape=(6, 8), stamp=0.0):
-    return Grid(np.full(shape, value, np.int8), 0.1, (1.0, 2.0, 0.0), 'r/map', stamp)
+    return Grid(np.full(shape, value, np.int8), 0.1, (1.0, 2.0, 0.0), 'a_robot/with_a_long/map_frame', stamp)
 
 
 def update(x, y, data, stamp):
@@ -63,6 +63,26 @@ def test_maps_and_updates_in_bag_order_and_cut_at(tmp_path):
     assert read_bag_maps(path, at=0.2)[1].grid is None      # robot_2's first map comes later
 
 
+def test_only_the_full_map_the_node_keeps_counts_with_the_updates_after_it(tmp_path):
+    path = write_bag(tmp_path / 'o.bag', [
+        (0.0, '/r/map', grid_to_msg(grid(0, stamp=T0))),
+        (1.0, '/r/map_updates', update(0, 0, [[100]], T0 + 1)),
+        (2.0, '/r/map', grid_to_msg(grid(-1, stamp=T0 + 2))),
+        (3.0, '/r/map_updates', update(1, 0, [[100]], T0 + 3)),
+        (4.0, '/r/map', grid_to_msg(grid(0, stamp=T0 + 1.5))),          # older stamp, same size: dropped
+        (5.0, '/r/map_updates', update(2, 0, [[100]], T0 + 5)),
+        (6.0, '/r/chatter', String('x')),
+    ])
+    (robot,) = read_bag_maps(path)
+    assert (robot.maps, robot.updates) == (3, 3)
+    assert robot.grid.data[0, :4].tolist() == [-1, 100, 100, -1] and int((robot.grid.data != -1).sum()) == 2
+    resized = write_bag(tmp_path / 'r.bag', [
+        (0.0, '/r/map', grid_to_msg(grid(0, stamp=T0 + 9))),
+        (1.0, '/r/map', grid_to_msg(grid(100, shape=(2, 3), stamp=T0))),   # older but resized: replaces
+    ])
+    assert read_bag_maps(resized)[0].grid.data.shape == (2, 3)
+
+
 def test_topic_suffix_and_discovery_rules():
     topics = {'/a/map': 'nav_msgs/OccupancyGrid', '/b/grid': 'nav_msgs/OccupancyGrid',
               '/b/grid_updates': 'map_msgs/OccupancyGridUpdate', '/c/map': 'std_msgs/String',
@@ -83,10 +103,12 @@ def test_malformed_messages_are_refused_per_robot_and_the_rest_kept(tmp_path, ca
         (4.0, '/r2/map', grid_to_msg(grid(-1, stamp=T0 + 4))),
     ])
     r1, r2 = read_bag_maps(path)
-    assert (r1.grid.data == 0).all() and r1.refused == 2 and r2.refused == 1
-    assert (r2.grid.data == -1).all()
+    assert (r1.grid.data == 0).all() and r1.refused == 2
+    # r2's early update would be refused, but it comes before the full map that counts: never read
+    assert (r2.grid.data == -1).all() and (r2.maps, r2.updates, r2.refused) == (1, 1, 0)
     warnings = [r.getMessage() for r in caplog.records if r.levelname == 'WARNING']
-    assert len(warnings) == 2 and warnings[0].startswith('/r1: 2 of 3 messages refused')
+    assert warnings == ['/r1: 2 of 3 messages refused, the first: malformed map: map of 8 x 6 cells: data has 47 '
+                        'cells, expected 48']
 
 
 def test_bad_bags_raise_one_line_errors(tmp_path):
