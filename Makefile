@@ -12,7 +12,6 @@ test: setup
 	@scripts/env.sh python -m pytest test -q -p no:cacheprovider $(PYTEST_ARGS)
 
 demo: setup
-	@test -e scripts/demo.sh || printf '#!/usr/bin/env bash\necho "demo not written yet"\n' > scripts/demo.sh
 	@scripts/env.sh bash scripts/demo.sh "$(DEMO_ARGS)"
 
 clean:

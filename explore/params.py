@@ -1,6 +1,6 @@
 """Parameters of the explore node (explore.md §2.1) plus this port's extensions.
 
-Each field's ``metadata['doc']`` is the one description of the parameter (the README table is generated from
+Each field's ``metadata['doc']`` is the one description of the parameter (the doc/explore.md table is generated from
 ``describe()``). Parameters are read once at start-up from the node's private namespace (``~name``).
 """
 from __future__ import annotations
@@ -112,6 +112,6 @@ class ParamDoc(NamedTuple):
 
 
 def describe() -> List[ParamDoc]:
-    """One row per parameter, in declaration order (source of the README table)."""
+    """One row per parameter, in declaration order (source of the doc/explore.md table)."""
     return [ParamDoc(f.name, f.type, f.default, f.metadata['unit'], f.metadata['doc'], f.metadata['extension'])
             for f in fields(ExploreParams)]

@@ -1,7 +1,7 @@
 """Parameters of the fleet_sim node: one dataclass holding the defaults and the one description of each parameter.
 
 Pure (no rospy). ``FleetSimParams.from_mapping(rospy.get_param('~'))`` reads the node's private parameters once at
-start; the README table and the node docstring come from ``describe()``. Unlike map_merge (which must keep the
+start; the doc/fleet_sim.md table and the node docstring come from ``describe()``. Unlike map_merge (which must keep the
 original's forgiving behaviour), a simulator with a wrong parameter would silently simulate something else, so any
 wrong type or value is a ParamError: the node stops at start with that one message.
 """
@@ -167,6 +167,6 @@ class ParamDoc(NamedTuple):
 
 
 def describe() -> List[ParamDoc]:
-    """One row per parameter, in declaration order (source of the README table and the node docstring)."""
+    """One row per parameter, in declaration order (source of the doc/fleet_sim.md table and the node docstring)."""
     return [ParamDoc(f.name, f.type, [] if f.name == 'robots' else f.default, f.metadata['unit'], f.metadata['doc'])
             for f in fields(FleetSimParams)]

@@ -1,11 +1,15 @@
-"""merge_maps: merge map_server maps offline (no roscore needed).
+"""merge_maps: merge map_server maps, or the robot maps of a rosbag, offline (no roscore needed).
 
     merge_maps [--confidence C] [--feature NAME] [--known-poses POSES.yaml [--legacy-cell-poses]]
                [--output PREFIX] [--png FILE] [--transforms-json FILE] MAP.yaml...
+    merge_maps [options] --bag FILE.bag [--at SECONDS] [--topic-suffix map]
 
-Writes PREFIX.pgm + PREFIX.yaml as map_saver does, a PNG preview (PREFIX.png unless --png), and with
---transforms-json the placement of every map (the format of ../shared/eval/README.md). Exit code 2 and a one-line
-reason on bad input.
+Writes PREFIX.pgm + PREFIX.yaml as map_saver does, a PNG preview (PREFIX.png unless --png) and beside it an
+overlay (PREFIX_overlay.png: each map in its own colour, with a legend), and with --transforms-json the placement
+of every map (the format of ../shared/eval/README.md). With --bag, every nav_msgs/OccupancyGrid topic <ns>/map of
+the bag (with <ns>/map_updates applied) is one robot, merged as it was at the end of the bag or at --at seconds.
+On a terminal, an estimation that takes over a second shows its progress. Exit code 2 and a one-line reason on
+bad input.
 
 POSES.yaml gives the pose of each map's frame in the world (metres, radians), by file name or in order:
     poses: {map_00.yaml: [0.0, 0.0, 0.0], map_01.yaml: {x: 4.2, y: -1.0, yaw: 1.57}}
@@ -19,15 +23,18 @@ import logging
 import os
 import sys
 import time
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import yaml
 
 from . import transforms as tf
 from .features import FEATURE_TYPES
 from .known_poses import InitPose
+from .grid import Grid
 from .mapio import MapFileError, load_map, save_map, save_png
+from .overlay import overlay_path, save_overlay, used_pairs
 from .pipeline import MergingPipeline
+from .progress import TerminalProgress, attach
 from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.cli')
@@ -41,7 +48,13 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     defaults = EstimationSettings()
     ap = argparse.ArgumentParser(prog='merge_maps', description=__doc__.split('\n\n')[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('maps', nargs='+', metavar='MAP.yaml')
+    ap.add_argument('maps', nargs='*', metavar='MAP.yaml')
+    ap.add_argument('--bag', metavar='FILE.bag', help='merge the robot maps recorded in a rosbag, not map files')
+    ap.add_argument('--at', type=float, metavar='SECONDS',
+                    help="with --bag: the maps as they were this many seconds after the bag's start (default: its end)")
+    ap.add_argument('--topic-suffix', metavar='NAME',
+                    help='with --bag: last name component of the robot map topics (default map; updates on '
+                         'NAME_updates)')
     ap.add_argument('--confidence', type=float, default=defaults.confidence,
                     help='confidence inliers / (8 + 0.3 matches) a pair needs, counted on verified wall correspondences '
                          '(default %(default)s as the C++ node; up to about 3.3 asks for more agreement)')
@@ -91,14 +104,43 @@ def read_poses(path: str, maps: Sequence[str]) -> List[InitPose]:
     return out
 
 
-def transforms_document(maps: Sequence[str], pipeline: MergingPipeline, estimate_ms: float, compose_ms: float):
+def load_inputs(args: argparse.Namespace) -> Tuple[List[str], List[Optional[Grid]]]:
+    """(names, grids) of the map files, or of the robots in --bag (a robot without a map yet has None)."""
+    if args.bag is None:
+        if args.at is not None or args.topic_suffix is not None:
+            raise UsageError('--at and --topic-suffix need --bag')
+        if not args.maps:
+            raise UsageError('no maps given: MAP.yaml... or --bag FILE.bag')
+        try:
+            return list(args.maps), [load_map(p) for p in args.maps]
+        except MapFileError as e:
+            raise UsageError(str(e))
+    if args.maps:
+        raise UsageError('give MAP.yaml files or --bag, not both')
+    from .bag_input import BagError, read_bag_maps   # lazily: needs rosbag
+    try:
+        robots = read_bag_maps(args.bag, args.at, args.topic_suffix or 'map')
+    except BagError as e:
+        raise UsageError(str(e))
+    if all(r.grid is None for r in robots):
+        when = f'in the first {args.at:g} s of' if args.at is not None else 'in'
+        raise UsageError(f'{args.bag}: no full map {when} the bag on ' + ', '.join(r.map_topic for r in robots))
+    print('merge_maps: bag robots: ' + ', '.join(
+        f'{r.name} ({r.maps} maps, {r.updates} updates{"" if r.grid is not None else ", no map"})' for r in robots),
+        file=sys.stderr, flush=True)
+    return [r.name for r in robots], [r.grid for r in robots]
+
+
+def transforms_document(names: Sequence[str], pipeline: MergingPipeline, estimate_ms: float, compose_ms: float,
+                        key: str = 'file'):
+    """key: 'file' (map files) or 'robot' (bag robot namespaces)."""
     entries = []
-    for path, t in zip(maps, pipeline.transforms):
+    for name, t in zip(names, pipeline.transforms):
         if t is None:
-            entries.append({'file': path, 'included': False})
+            entries.append({key: name, 'included': False})
         else:
             x, y, yaw, scale = tf.params(t)
-            entries.append({'file': path, 'included': True,
+            entries.append({key: name, 'included': True,
                             'transform': {'x': x, 'y': y, 'yaw': yaw, 'scale': scale}})
     return {'maps': entries, 'reference': pipeline.reference, 'estimate_ms': estimate_ms, 'compose_ms': compose_ms}
 
@@ -109,14 +151,11 @@ def run(args: argparse.Namespace) -> int:
         settings.validate()
     except ValueError as e:
         raise UsageError(str(e))
-    poses = read_poses(args.known_poses, args.maps) if args.known_poses else None
-    if args.legacy_cell_poses and poses is None:
+    if args.legacy_cell_poses and not args.known_poses:
         raise UsageError('--legacy-cell-poses needs --known-poses')
-    try:
-        grids = [load_map(p) for p in args.maps]
-    except MapFileError as e:
-        raise UsageError(str(e))
-    print(f'merge_maps: {len(grids)} maps loaded', file=sys.stderr, flush=True)
+    names, grids = load_inputs(args)
+    poses = read_poses(args.known_poses, names) if args.known_poses else None
+    print(f'merge_maps: {sum(g is not None for g in grids)} maps loaded', file=sys.stderr, flush=True)
 
     pipeline = MergingPipeline(settings)
     pipeline.feed(grids)
@@ -126,7 +165,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f'merge_maps: estimating transforms ({len(grids) * (len(grids) - 1) // 2} pairs)...',
               file=sys.stderr, flush=True)
-        pipeline.estimate()
+        with TerminalProgress('merge_maps: estimating', unit='pairs') as progress:
+            attach(settings, progress)   # the estimation reports through progress_of(settings)
+            pipeline.estimate()
+        attach(settings, None)
     estimate_ms = (time.perf_counter() - t0) * 1000.0
     merged = pipeline.compose('map')
     compose_ms = pipeline.compose_seconds * 1000.0
@@ -139,13 +181,17 @@ def run(args: argparse.Namespace) -> int:
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     if args.transforms_json:
         with open(args.transforms_json, 'w') as f:
-            json.dump(transforms_document(args.maps, pipeline, estimate_ms, compose_ms), f, indent=1)
+            json.dump(transforms_document(names, pipeline, estimate_ms, compose_ms,
+                                          'robot' if args.bag else 'file'), f, indent=1)
     if merged is None:
         print('merge_maps: nothing to merge: no map has a known cell', file=sys.stderr)
         return 1
     yaml_path, _ = save_map(merged, args.output)
     png = save_png(merged, args.png or args.output + '.png')
-    print(f'merge_maps: wrote {yaml_path} and {png}', file=sys.stderr)
+    labels = [n if args.bag else os.path.basename(n) for n in names]
+    pairs = used_pairs(pipeline.last_estimate.pairs, pipeline.transforms) if poses is None else []
+    overlay = save_overlay(overlay_path(png), grids, pipeline.transforms, labels, pairs)
+    print(f'merge_maps: wrote {yaml_path}, {png} and {overlay}', file=sys.stderr)
     return 0
 
 

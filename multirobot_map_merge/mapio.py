@@ -220,7 +220,11 @@ def save_map(grid: Grid, prefix: str, occupied_thresh: int = 65, free_thresh: in
 
 def save_png(grid: Grid, path: str, occupied_thresh: int = 65, free_thresh: int = 25) -> str:
     """Write a PNG preview with map_saver's grey levels, +y up; returns the path."""
-    img = data_to_image(grid.data, occupied_thresh, free_thresh)
+    return save_image(data_to_image(grid.data, occupied_thresh, free_thresh), path)
+
+
+def save_image(img: np.ndarray, path: str) -> str:
+    """Write an image (grey or BGR, uint8) as PNG, atomically; returns the path."""
     ok, buf = cv2.imencode('.png', img)
     if not ok:
         raise MapFileError(f"{path}: PNG encoding failed")

@@ -18,7 +18,7 @@ ORIGIN_MODES = ('center', 'world')
 
 
 def _p(default: Any, doc: str) -> Any:
-    """A parameter: its code default and its one-line meaning (the node docstring and README table use both)."""
+    """A parameter: its code default and its one-line meaning (used by the node docstring and doc/map_merge.md)."""
     return dataclasses.field(default=default, metadata={'doc': doc})
 
 
@@ -48,7 +48,7 @@ class MapMergeParams:
     @classmethod
     def fields_doc(cls) -> List[Tuple[str, str, Any, str]]:
         """(name, type name, default, meaning) of every parameter: the one source of the node docstring and of
-        the README table (scripts/param_table.py)."""
+        the table in doc/map_merge.md (scripts/param_table.py)."""
         return [(f.name, _TYPE_NAMES[f.type if isinstance(f.type, type) else _ANNOT[f.type]], f.default,
                  f.metadata.get('doc', '')) for f in dataclasses.fields(cls)]
 

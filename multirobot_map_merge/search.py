@@ -107,8 +107,9 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
         fw, fo = np.fft.rfft2(wr, shape), np.fft.rfft2(orr, shape)
         score = np.fft.irfft2(np.conj(fw) * (fwj - penalty * foj) - penalty * np.conj(fo) * fwj
                              + free_reward * np.conj(fo) * foj, shape)
-        # local maxima, best first
-        peaks = (score == cv2.dilate(score.astype(np.float32), np.ones((5, 5), np.uint8))) & (score > 0)
+        # local maxima, best first; numpy < 2 computes the FFT in float64 whatever the input: compare in float32
+        score = score.astype(np.float32, copy=False)
+        peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
         ys, xs = np.nonzero(peaks)
         if ys.size == 0:
             continue

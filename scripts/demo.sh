@@ -69,7 +69,7 @@ if [ -n "$offline" ]; then
   [ -f "$src/truth.json" ] || { echo "demo: no sample scenario '$scenario' in data/samples" >&2; exit 2; }
   python "$repo/nodes/merge_maps" --output "$out/merged" --transforms-json "$out/transforms.json" "$src"/map_*.yaml
   python "$repo/scripts/placement_report.py" "$src/truth.json" "$out/transforms.json"
-  echo "demo: merged map in $out/merged.yaml (+ .pgm), preview $out/merged.png"
+  echo "demo: merged map in $out/merged.yaml (+ .pgm), preview $out/merged.png, overlay $out/merged_overlay.png"
   exit 0
 fi
 

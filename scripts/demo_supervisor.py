@@ -40,6 +40,7 @@ from explore.merge_latency import LatencyTracker, joinable_robots
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
+from multirobot_map_merge.overlay import save_named_overlay
 from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
 
 Pose = Tuple[float, float, float]
@@ -252,6 +253,13 @@ class Supervisor:
             yaml_path, pgm_path = save_map(merged, os.path.join(self.out, 'merged'))
             png_path = save_png(merged, os.path.join(self.out, 'merged.png'))
             files = {'yaml': yaml_path, 'pgm': pgm_path, 'png': png_path}
+            with self.lock:
+                status = self.status
+            if status is not None:   # each robot's map in its colour where map_merge placed it
+                files['overlay'] = save_named_overlay(
+                    os.path.join(self.out, 'merged_overlay.png'), robot_maps,
+                    {r.robot_namespace.strip('/'): _transform_pose(r.transform) for r in status.robots if r.included},
+                    [(p.robot_a.strip('/'), p.robot_b.strip('/'), p.confidence) for p in status.pairs if p.used])
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
                    'placement': rows, 'files': files, 'progress': self.progress,

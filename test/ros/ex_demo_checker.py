@@ -87,7 +87,7 @@ class DemoCheck(unittest.TestCase):
         rospy.sleep(0.5)   # written in one go, but be safe
         with open(path) as f:
             summary = json.load(f)
-        for key in ('yaml', 'pgm', 'png'):
+        for key in ('yaml', 'pgm', 'png', 'overlay'):
             self.assertTrue(os.path.isfile(summary['files'].get(key, '')), f'no merged {key} file')
         merged = load_map(summary['files']['yaml'])
         status = rospy.wait_for_message(rospy.get_param('~status_topic', '/map_merge/map_merge/status'),
