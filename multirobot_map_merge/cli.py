@@ -163,9 +163,9 @@ def run(args: argparse.Namespace) -> int:
     if poses is not None:
         pipeline.set_known_poses(poses, legacy=args.legacy_cell_poses)
     else:
-        print(f'merge_maps: estimating transforms ({len(grids) * (len(grids) - 1) // 2} pairs)...',
+        print(f'merge_maps: estimating transforms of {len(grids)} maps...',
               file=sys.stderr, flush=True)
-        with TerminalProgress('merge_maps: estimating', unit='pairs') as progress:
+        with TerminalProgress('merge_maps: estimating', unit='maps placed or set aside') as progress:
             attach(settings, progress)   # the estimation reports through progress_of(settings)
             pipeline.estimate()
         attach(settings, None)

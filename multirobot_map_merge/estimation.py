@@ -24,6 +24,7 @@ from .grid import Grid
 from .growth import Group, Grower, Progress
 from .matching import PairMatch
 from .memory import EstimationMemory
+from .progress import progress_of
 from .settings import EstimationSettings
 from .tracking import track
 
@@ -58,6 +59,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     (tracking.py) and only the other grids are searched. `memory` (with `names`, stable names of the grids such as
     robot namespaces) keeps from one estimation to the next what need not be done again (memory.py)."""
     settings.validate()
+    progress = progress or progress_of(settings)   # merge_maps attaches its terminal display to the settings
     t0 = time.perf_counter()
     cache = cache or FeatureCache()
     res = working_resolution(grids, settings)

@@ -112,3 +112,10 @@ def test_growth_places_the_samples_in_any_order(repo_root, name):
             assert result.transforms[i] is not None, (order, k)
             rot, dist = _error(result.transforms[i], poses, k, ref)
             assert rot < 0.5 and dist < 0.15, (order, k, rot, dist)
+
+
+def test_estimation_reports_progress_up_to_every_map(repo_root):
+    grids, _ = _sample(repo_root, 'three_robots')
+    seen = []
+    estimate(grids + [None], EstimationSettings(), progress=lambda done, total: seen.append((done, total)))
+    assert seen and seen[-1] == (3, 3) and all(a <= b for (a, _), (b, _) in zip(seen, seen[1:]))

@@ -80,7 +80,7 @@ def test_the_ticker_redraws_during_long_work_and_erases_the_line_at_the_end():
 
 
 def test_merge_maps_passes_a_terminal_printer_that_the_estimation_reaches(repo_root, tmp_path, monkeypatch):
-    """What the estimation will do: call progress_of(settings)(done, total); on a terminal merge_maps shows it."""
+    """The estimation calls progress_of(settings)(done, total) (here slowed down); on a terminal merge_maps shows it."""
     from multirobot_map_merge import cli
     from multirobot_map_merge.pipeline import MergingPipeline
 
@@ -99,6 +99,6 @@ def test_merge_maps_passes_a_terminal_printer_that_the_estimation_reaches(repo_r
     maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'chain3').glob('map_*.yaml'))
     assert cli.main(['--output', str(tmp_path / 'm'), *maps]) == 0
     text = err.getvalue()
-    assert re.search(r'\rmerge_maps: estimating: [12]/3 pairs, \d+ s', text), repr(text)
+    assert re.search(r'\rmerge_maps: estimating: [12]/3 maps placed or set aside, \d+ s', text), repr(text)
     # the line is erased before the next message
     assert re.search(r'\r +\rmerge_maps: 3 of 3 maps placed', text)
