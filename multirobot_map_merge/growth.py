@@ -10,6 +10,7 @@ keypoints are kept until their maps grow.
 """
 from __future__ import annotations
 
+import time
 from concurrent.futures import Executor
 from typing import Callable, Dict, List, Optional, Sequence
 
@@ -81,6 +82,7 @@ class Grower:
         self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
         self.contradicting: set = set()          # grids that overlap a group's union but contradict it
         self.settled = 0
+        self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -164,6 +166,8 @@ class Grower:
         known = group.union.known_pixels
         members = frozenset(self.names[m] for m in group.members)
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
+            if self.search_seconds >= self.s.search_budget_s:
+                return False   # the others are searched in a later estimation (their memory is not updated)
             key = (self.names[k], members)
             last = self.memory.searches.get(key)
             if last is not None and unchanged(last[0], self.grids[k]) and known < SEARCH_GROWTH * last[1]:
@@ -173,7 +177,9 @@ class Grower:
                     and overlap_found(refused.best, self.s, len(group.members) > 1):
                 continue   # the descriptors found the overlap and the maps disagree there
             self.memory.searches.put(key, (self.grids[k], known))
+            started = time.perf_counter()
             m = self.match(k, group, search=True)
+            self.search_seconds += time.perf_counter() - started
             if self._admit(group, unplaced, [m]):
                 return True
         return False
@@ -208,8 +214,11 @@ class Grower:
 
     def _match_groups(self, small: Group, big: Group) -> PairMatch:
         self.tried[(small.seed, id(big))] = big.union.version
-        return match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
-                          onto_union=len(big.members) > 1)
+        started = time.perf_counter()
+        m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
+                       search=self.search_seconds < self.s.search_budget_s, onto_union=len(big.members) > 1)
+        self.search_seconds += time.perf_counter() - started
+        return m
 
     def _settle(self, n: int) -> None:
         self.settled += n

@@ -28,8 +28,10 @@ instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a st
 within a fraction of a second: main() waits at most 0.5 s for a cycle still running (an estimation of many maps can
 take seconds) and exits without it, and a watchdog ends the process 1.6 s after the shutdown request whatever still
 runs. Rates are checked positive at start (no zero-period loop). An estimation that takes longer than half its
-period (many robots) is followed by a rest as long as it took, so that estimation uses at most about half of the
-node's time and merging keeps its rate. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
+period (many robots) is followed by a rest of half the (wall) time it took, so that estimation uses at most about
+two thirds of the node's time and merging keeps its rate; the correlation searches of one estimation stop after
+node_params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that match by descriptors join
+quickly. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming
@@ -72,7 +74,7 @@ from .throttle import Throttle
 
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
-ESTIMATION_REST = 1.0   # after an estimation that took b seconds, the next starts b * this later at the earliest
+ESTIMATION_REST = 0.5   # after an estimation that took b s (wall), the next starts b * this after it ends at the earliest
 SLICE = 0.1             # s (wall) between two checks of the stop flag while a loop waits on simulated time
 EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
 HARD_EXIT = 1.6         # s (wall) after a shutdown request the process ends even if rospy's shutdown still runs
@@ -90,7 +92,7 @@ class LoopPacer:
     """Paces one loop at a rate in ROS time, as ros::Rate does (so it follows /clock under use_sim_time).
 
     `wait()` returns when the period since `start_cycle()` has passed (and, with `rest_share`, at least that share
-    of the time the cycle's work took), or at once when the loop's `kick` event is set (a stop request, or the
+    of the wall time the cycle's work took), or at once when the loop's `kick` event is set (a stop request, or the
     estimation's wake-up). Under simulated time it waits on rospy's clock condition, which every /clock message
     notifies, in slices of at most SLICE wall seconds; until /clock has started it paces on the wall clock; when
     ROS time jumps back (bag loop, simulator reset) the period restarts instead of raising as rospy.Rate would.
@@ -117,13 +119,13 @@ class LoopPacer:
 
     def wait(self) -> None:
         cond = rospy.rostime.get_rostime_cond()
-        busy = max(self._elapsed(), 0.0)
-        cycle = max(self.period, busy * (1.0 + self.rest_share))
+        # the rest is in wall time: it keeps the CPU share down, whatever the simulated time's speed-up
+        rest_until = time.monotonic() + (time.monotonic() - self._wall0) * self.rest_share
         while not self.kick.is_set():
             elapsed = self._elapsed()
             if elapsed < 0.0:
                 break   # ROS time moved backwards (bag loop, simulator reset): start a new period now
-            remaining = cycle - elapsed
+            remaining = max(self.period - elapsed, rest_until - time.monotonic())
             if remaining <= 0.0:
                 break
             if rospy.rostime.is_wallclock():
@@ -241,8 +243,8 @@ class MapMergeNode:
         loops = [('discovery', self.discover, LoopPacer(self.params.discovery_rate, self._kicks['discovery'])),
                  ('merging', self.merge_once, LoopPacer(self.params.merging_rate, self._kicks['merging']))]
         if not self.params.known_init_poses:
-            # an estimation of many maps can take longer than its period: rest as long as it took, so that it
-            # uses at most about half of the node's time (the original would run it back to back)
+            # an estimation of many maps can take longer than its period: rest half as long as it took, so that
+            # it uses at most about two thirds of the node's time (the original would run it back to back)
             loops.append(('estimation', self.estimate_once,
                           LoopPacer(self.params.estimation_rate, self._kicks['estimation'], ESTIMATION_REST)))
         threads = [threading.Thread(target=self._loop, args=loop, name=loop[0], daemon=True) for loop in loops]

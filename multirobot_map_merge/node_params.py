@@ -22,6 +22,10 @@ def _p(default: Any, doc: str) -> Any:
     return dataclasses.field(default=default, metadata={'doc': doc})
 
 
+# s of correlation search per estimation in the node: a live fleet's small maps seldom place by it, and an estimation
+# that searches every pair of them leaves the robots that match by descriptors waiting (the rest is searched later)
+SEARCH_BUDGET = 1.0
+
 @dataclass(frozen=True)
 class MapMergeParams:
     # --- the original's parameters (private namespace ~), same names, types and code defaults (§2.3) ---
@@ -78,7 +82,8 @@ class MapMergeParams:
         return cls(**values)
 
     def estimation_settings(self) -> EstimationSettings:
-        return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence)
+        return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence,
+                                  search_budget_s=SEARCH_BUDGET)
 
 
 _ANNOT = {'float': float, 'bool': bool, 'str': str, 'int': int}

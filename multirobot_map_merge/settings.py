@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 from .features import FEATURE_TYPES
@@ -44,6 +45,7 @@ class EstimationSettings:
     search_penalty: float = PENALTY   # correlation search: cost of a wall on the other's open floor
     search_free_reward: float = FREE_REWARD  # correlation search: reward of floor both maps saw free
     search_keep: int = 8              # correlation search: candidates refined
+    search_budget_s: float = math.inf  # correlation searches of one estimation stop after this many seconds
     threads: int = 2                  # pairs matched in parallel
     seed: int = 0
 
@@ -59,7 +61,7 @@ class EstimationSettings:
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
         for name in ('deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m', 'search_penalty',
-                     'search_free_reward', 'search_keep'):
+                     'search_free_reward', 'search_keep', 'search_budget_s'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must not be negative, not {getattr(self, name)}')
         if self.confidence != self.confidence:

@@ -90,7 +90,8 @@ if [ -n "$record" ]; then
   mkdir -p "$(dirname "$record")"
   # once the master answers; the maps are latched, so nothing published before is lost
   ( for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
-    exec rosbag record -q -O "$record" -e '/robot_[0-9]+/map(_updates)?|/map_merge/map_merge/status' ) &
+    exec rosbag record -q -O "$record" -e '/robot_[0-9]+/map(_updates)?|/map_merge/map_merge/status' \
+      >/dev/null 2>&1 ) &
   rec_pid=$!
 fi
 # Hard stop a little after the supervisor's own real-time limit, whatever happens.
