@@ -11,6 +11,7 @@ again without it (at most MAX_PASSES rounds).
 from __future__ import annotations
 
 import logging
+import math
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -30,6 +31,8 @@ log = logging.getLogger('rosout.multirobot_map_merge.tracking')
 
 CONTEXT_M = 1.0   # metres around a grid's footprint taken from the other grids' union
 MAX_PASSES = 3    # checks of the previous placements: after that, every one still failing is dropped
+REANCHOR_RAD = math.radians(0.1)   # the reference fitting the others better by this much moves the others
+REANCHOR_M = 0.03
 
 
 @dataclass
@@ -131,6 +134,18 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
             log.info('the reference grid %d no longer agrees with the others (%s): placements searched anew',
                      reference, ref.match.reason)
             return {}, list(checks.values()) + [ref]
+        box = footprints.get(reference)
+        corners = np.array([[box[0], box[1]], [box[2], box[3]]]) if box is not None else np.zeros((0, 2))
+        rot, shift = tf.difference(ref.transform, np.eye(3), corners)
+        if rot > REANCHOR_RAD or shift > REANCHOR_M:
+            # the others agree among themselves and the reference fits them better elsewhere: an early placement
+            # (small maps) was off; the reference stays the frame, so the others move
+            log.info('re-anchored the placed grids on the reference grid %d (%.2f deg, %.2f m)', reference,
+                     math.degrees(rot), shift)
+            correction = tf.inverse(ref.transform)
+            for k in placed:
+                if k != reference:
+                    placed[k] = correction @ placed[k]
     for c in checks.values():
         if c.transform is None:
             log.info('grid %d: %s', c.k, c.match.reason)
