@@ -15,7 +15,7 @@ import numpy as np
 
 from .grid import Grid
 
-GROWTH = 0.1      # share of a map's known cells that may be added before a verdict on it is made again
+GROWTH = 0.2      # share of a map's known cells that may be added before a verdict on it is made again
 REVISION = 0.02   # share of its known cells that may change before a verdict on it is made again
 
 
