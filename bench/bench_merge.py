@@ -209,7 +209,8 @@ def main() -> int:
         return 0
     if args.curve:
         lines = [f'estimation cost curve (first n maps of {ROWS["large30"][0]}), {max(1, args.repeat)} repeat(s), '
-                 f'median; load average {os.getloadavg()[0]:.2f}', '', *curve_table(run_curve(data_dir, max(1, args.repeat)))]
+                 f'median; load average {os.getloadavg()[0]:.2f}', '',
+                 *curve_table(run_curve(data_dir, max(1, args.repeat)))]
         print('\n'.join(lines))
         if args.markdown:
             args.markdown.write_text('\n'.join(lines) + '\n')

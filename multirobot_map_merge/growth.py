@@ -132,7 +132,8 @@ class Grower:
         if tried is None:
             last = self.memory.tries.get((self.names[k], frozenset(self.names[m] for m in group.members)))
             # matched in an earlier estimation against these members: again once either has changed enough
-            if last is None or not unchanged(last[0], self.grids[k]) or group.union.known_pixels > MATCH_GROWTH * last[1]:
+            if last is None or not unchanged(last[0], self.grids[k]) \
+                    or group.union.known_pixels > MATCH_GROWTH * last[1]:
                 return True
             if last[2]:
                 self.contradicting.add(k)

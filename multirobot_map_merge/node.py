@@ -74,7 +74,7 @@ from .throttle import Throttle
 
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
-ESTIMATION_REST = 0.5   # after an estimation that took b s (wall), the next starts b * this after it ends at the earliest
+ESTIMATION_REST = 0.5   # an estimation that took b s (wall) is followed by a rest of b * this at least
 SLICE = 0.1             # s (wall) between two checks of the stop flag while a loop waits on simulated time
 EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
 HARD_EXIT = 1.6         # s (wall) after a shutdown request the process ends even if rospy's shutdown still runs
