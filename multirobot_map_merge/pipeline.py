@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
 from . import transforms as tf
+from .admission import admit
 from .compose import compose
 from .estimation import Estimate, estimate
 from .features import FeatureCache
@@ -37,10 +38,20 @@ class MergingPipeline:
         self.reference: Optional[int] = None
         self.last_estimate: Optional[Estimate] = None
         self.compose_seconds = 0.0
+        self.invalid_cells: Dict[int, int] = {}   # grid index -> cells read as unknown by the last feed
+        self.refused: Dict[int, str] = {}         # grid index -> why the last feed left it out
+        self.left_out: Dict[int, str] = {}        # grid index -> why the last compose left it out
 
-    def feed(self, grids: Sequence[Optional[Grid]]) -> None:
-        """Replace the grids. Transforms are kept only if the number of grids is unchanged."""
-        grids = [g if g is not None and not g.is_empty() else None for g in grids]
+    def feed(self, grids: Sequence[Optional[Grid]], matching: bool = True) -> None:
+        """Replace the grids, each admitted (validated, cells normalised) by admission.admit; with `matching` (the
+        grids will be estimated) also those the estimation cannot match are refused. A refused grid is None here,
+        with the reason in `refused`; `invalid_cells` counts the cells read as unknown.
+        Transforms are kept only if the number of grids is unchanged."""
+        work = self.settings.min_work_resolution if matching else None
+        admitted = [admit(g, work) for g in grids]
+        self.invalid_cells = {k: a.invalid_cells for k, a in enumerate(admitted) if a.invalid_cells}
+        self.refused = {k: a.refused for k, a in enumerate(admitted) if a.refused}
+        grids = [a.grid for a in admitted]
         if len(grids) != len(self.grids):
             self.transforms = [None] * len(grids)
             self.reference = None
@@ -72,7 +83,8 @@ class MergingPipeline:
         resolution = None
         if self.reference is not None and self.grids[self.reference] is not None:
             resolution = self.grids[self.reference].resolution
-        merged = compose(self.grids, self.transforms, resolution, frame_id)
+        self.left_out = {}
+        merged = compose(self.grids, self.transforms, resolution, frame_id, self.left_out)
         self.compose_seconds = time.perf_counter() - t0
         return merged
 
