@@ -6,7 +6,7 @@ Every grid the merge uses (node, both loops; offline merge_maps) passes `admit` 
   * size, for matching only (feed(matching=True), what estimation uses): a grid whose known part, at the
     estimation's working resolution, would exceed MAX_MATCH_PIXELS (e.g. 1 km cells) or span fewer than 2 pixels in a
     direction (one known row; or 1 um cells) is left out ("refused"): such a map cannot be matched, and the feature
-    detectors fail on it, which would stop the estimation of the others. Composing at known poses takes them.
+    detectors fail on it, which would stop the estimation of the others. It is still composed at a known pose.
 Geometry (a 2-D array of at most MAX_CELLS cells, finite positive resolution, finite origin) is already an invariant
 of Grid (GridError at construction). Placement problems (non-finite, or a merged grid over MAX_CELLS) are handled
 where placements meet, in compose: the robot is left out of that cycle.
@@ -27,9 +27,9 @@ MAX_MATCH_PIXELS = 1 << 26
 
 @dataclass(frozen=True)
 class Admission:
-    grid: Optional[Grid]      # the grid to merge (cells normalised), None when there is none or it is refused
+    grid: Optional[Grid]      # the grid to compose (cells normalised), None when there is none (or it is empty)
     invalid_cells: int = 0    # cells read as unknown because their value was outside {-1} and 0..100
-    refused: str = ''         # why the grid was left out ('' when admitted or absent)
+    refused: str = ''         # why the grid cannot be matched ('' when it can, or when not asked)
 
 
 def clean_cells(data: np.ndarray) -> Tuple[np.ndarray, int]:
@@ -76,13 +76,10 @@ def admit(grid: Optional[Grid], min_work_resolution: Optional[float] = None) -> 
     if grid is None or grid.is_empty():
         return Admission(None)
     data, invalid = clean_cells(grid.data)
-    if min_work_resolution is not None:
-        refusal = matching_refusal(data, grid.resolution, min_work_resolution)
-        if refusal:
-            return Admission(None, invalid, refusal)
+    refusal = matching_refusal(data, grid.resolution, min_work_resolution) if min_work_resolution else ''
     if invalid:
         grid = Grid(data, grid.resolution, grid.origin, grid.frame_id, grid.stamp, dict(grid.extra))
-    return Admission(grid, invalid)
+    return Admission(grid, invalid, refusal)
 
 
 def describe_invalid(count: int) -> str:

@@ -486,7 +486,7 @@ class MapMergeNode:
         for k, count in pipeline.invalid_cells.items():
             self._warn(robots[k].name, 'cells', describe_invalid(count))
         for k, reason in pipeline.refused.items():
-            self._warn(robots[k].name, 'refused', f'map left out of the merge: {reason}')
+            self._warn(robots[k].name, 'refused', f'map left out of the estimation: {reason}')
 
     def _broadcast_tf(self, robots, grids, transforms, world_from_merged: np.ndarray, now) -> None:
         out = []

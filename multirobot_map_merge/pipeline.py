@@ -33,7 +33,8 @@ class MergingPipeline:
         self.settings = settings or EstimationSettings()
         self.settings.validate()
         self.cache = FeatureCache()
-        self.grids: List[Optional[Grid]] = []
+        self.grids: List[Optional[Grid]] = []        # as estimate sees them (None: absent, empty or unmatchable)
+        self.composable: List[Optional[Grid]] = []   # as compose sees them (None: absent or empty)
         self.transforms: List[Optional[np.ndarray]] = []
         self.reference: Optional[int] = None
         self.last_estimate: Optional[Estimate] = None
@@ -43,15 +44,16 @@ class MergingPipeline:
         self.left_out: Dict[int, str] = {}        # grid index -> why the last compose left it out
 
     def feed(self, grids: Sequence[Optional[Grid]], matching: bool = True) -> None:
-        """Replace the grids, each admitted (validated, cells normalised) by admission.admit; with `matching` (the
-        grids will be estimated) also those the estimation cannot match are refused. A refused grid is None here,
-        with the reason in `refused`; `invalid_cells` counts the cells read as unknown.
-        Transforms are kept only if the number of grids is unchanged."""
+        """Replace the grids, each admitted (validated, cells normalised) by admission.admit; `invalid_cells`
+        counts the cells read as unknown. With `matching` (the grids may be estimated; the default) a grid the
+        estimation cannot match is None in `grids` (what estimate sees), with the reason in `refused`; it is still
+        composed at a known pose. Transforms are kept only if the number of grids is unchanged."""
         work = self.settings.min_work_resolution if matching else None
         admitted = [admit(g, work) for g in grids]
         self.invalid_cells = {k: a.invalid_cells for k, a in enumerate(admitted) if a.invalid_cells}
         self.refused = {k: a.refused for k, a in enumerate(admitted) if a.refused}
-        grids = [a.grid for a in admitted]
+        self.composable = [a.grid for a in admitted]
+        grids = [None if a.refused else a.grid for a in admitted]
         if len(grids) != len(self.grids):
             self.transforms = [None] * len(grids)
             self.reference = None
@@ -70,7 +72,7 @@ class MergingPipeline:
     def set_known_poses(self, poses: Sequence[Optional[InitPose]], legacy: bool = False) -> None:
         if len(poses) != len(self.grids):
             raise ValueError(f'{len(poses)} poses for {len(self.grids)} grids')
-        self.transforms = transforms_from_poses(self.grids, poses, legacy)
+        self.transforms = transforms_from_poses(self.composable, poses, legacy)
         self.reference = None
 
     def set_transforms(self, transforms: Sequence[Optional[np.ndarray]]) -> None:
@@ -84,7 +86,7 @@ class MergingPipeline:
         if self.reference is not None and self.grids[self.reference] is not None:
             resolution = self.grids[self.reference].resolution
         self.left_out = {}
-        merged = compose(self.grids, self.transforms, resolution, frame_id, self.left_out)
+        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out)
         self.compose_seconds = time.perf_counter() - t0
         return merged
 
@@ -92,9 +94,9 @@ class MergingPipeline:
         """Grid k's cells (corner coordinates) -> cells of the reference grid (or of the first placed grid)."""
         ref = self.reference
         if ref is None:
-            ref = next((i for i, t in enumerate(self.transforms) if t is not None and self.grids[i] is not None), None)
-        if ref is None or self.transforms[k] is None or self.grids[k] is None:
+            ref = next((i for i, t in enumerate(self.transforms) if t is not None and self.composable[i] is not None), None)
+        if ref is None or self.transforms[k] is None or self.composable[k] is None:
             return None
-        g_ref = self.grids[ref]
+        g_ref = self.composable[ref]
         return (tf.inverse(g_ref.cell_to_map()) @ tf.inverse(self.transforms[ref]) @ self.transforms[k]
-                @ self.grids[k].cell_to_map())
+                @ self.composable[k].cell_to_map())

@@ -176,7 +176,7 @@ def test_pipeline_compose_never_fails_and_never_holds_a_bad_cell(rng):
         assert merged.data.size <= MAX_CELLS
         assert all(math.isfinite(v) for v in merged.origin) and merged.resolution > 0
         for k in pipeline.left_out:
-            assert pipeline.grids[k] is not None and pipeline.transforms[k] is not None
+            assert pipeline.composable[k] is not None and pipeline.transforms[k] is not None
     assert merged_some
 
 
