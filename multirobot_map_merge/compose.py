@@ -43,13 +43,13 @@ def warp_into(canvas: np.ndarray, src: np.ndarray, src_to_canvas: np.ndarray) ->
 
 def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.ndarray]],
             resolution: Optional[float] = None, frame_id: str = '',
-            left_out: Optional[Dict[int, str]] = None) -> Optional[Grid]:
+            left_out: Optional[Dict[int, str]] = None, max_cells: int = MAX_CELLS) -> Optional[Grid]:
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
     of the first placed grid) and its origin is the corner of the smallest canvas holding every known cell.
     Returns None when no grid with a known cell is placed. A grid whose placement is not finite, or that would make
-    the merged grid larger than MAX_CELLS, is left out (see select_parts); `left_out` (if given) receives its index
+    the merged grid larger than `max_cells` (at most MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index
     and the reason. GridError only for a bad `resolution` argument.
     """
     placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))
@@ -74,7 +74,7 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
         return None
     if not (math.isfinite(resolution) and resolution > 0):
         raise GridError(f'merged resolution {resolution} is not a positive number')
-    keep, reasons = select_parts(boxes)
+    keep, reasons = select_parts(boxes, min(max_cells, MAX_CELLS))
     if left_out is not None:
         left_out.update(reasons)
     parts = [p for p in parts if p[0] in keep]

@@ -34,7 +34,7 @@ the robot instead of being merged; the reference robot does not jump between est
 missing is retried at every discovery pass (as the original) with a throttled warning; the tf child frame is the
 robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '/', as tf2 requires. Cell values
 outside -1 and 0..100 are read as unknown, and a robot whose map or placement would make the merged grid unusable
-(non-finite, over MAX_CELLS) is left out of that cycle, each with a throttled warning naming the robot (admission.py,
+(non-finite, over ~max_merged_cells) is left out of that cycle, each with a throttled warning naming the robot (admission.py,
 compose.select_parts); the other robots are merged as usual.
 `~status` transforms are robot map frame -> world_frame as placed by the latest merge cycle.
 """
@@ -460,7 +460,7 @@ class MapMergeNode:
             _, msg, world_from_merged = last
             msg = restamped(msg, now) if msg is not None else None
         else:
-            merged = pipeline.compose(self.params.world_frame)
+            merged = pipeline.compose(self.params.world_frame, self.params.max_merged_cells)
             for k, reason in pipeline.left_out.items():
                 self._warn(robots[k].name, 'left_out', f'left out of this merge: {reason}')
             world_from_merged = np.eye(3)

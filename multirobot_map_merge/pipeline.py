@@ -21,7 +21,7 @@ from .admission import admit
 from .compose import compose
 from .estimation import Estimate, estimate
 from .features import FeatureCache
-from .grid import Grid
+from .grid import MAX_CELLS, Grid
 from .known_poses import InitPose, transforms_from_poses
 from .settings import EstimationSettings
 
@@ -80,13 +80,13 @@ class MergingPipeline:
             raise ValueError(f'{len(transforms)} transforms for {len(self.grids)} grids')
         self.transforms = [None if t is None else np.asarray(t, float) for t in transforms]
 
-    def compose(self, frame_id: str = '') -> Optional[Grid]:
+    def compose(self, frame_id: str = '', max_cells: int = MAX_CELLS) -> Optional[Grid]:
         t0 = time.perf_counter()
         resolution = None
         if self.reference is not None and self.grids[self.reference] is not None:
             resolution = self.grids[self.reference].resolution
         self.left_out = {}
-        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out)
+        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out, max_cells)
         self.compose_seconds = time.perf_counter() - t0
         return merged
 
