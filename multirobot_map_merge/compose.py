@@ -47,17 +47,19 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
-    of the first placed grid) and its origin is the corner of the smallest canvas holding every known cell.
-    Returns None when no grid with a known cell is placed. A grid whose placement is not finite, or that would make
-    the merged grid larger than `max_cells` (at most MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index
-    and the reason. GridError only for a bad `resolution` argument.
+    of the first placed grid; unless another placed grid's resolution lets more grids in) and its origin is the
+    corner of the smallest canvas holding every known cell. Returns None when no grid with a known cell is placed.
+    A grid whose placement is not finite, or that would make the merged grid larger than `max_cells` (at most
+    MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and the reason.
+    GridError only for a bad `resolution` argument.
     """
     placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))
               if g is not None and t is not None and not g.is_empty()]
-    if resolution is None:
+    default = resolution
+    if default is None:
         ref = next((g for _, g, t in placed if np.allclose(t, np.eye(3))), placed[0][1] if placed else None)
-        resolution = ref.resolution if ref is not None else 0.0
-    parts, boxes = [], {}
+        default = ref.resolution if ref is not None else 0.0
+    parts, metric = [], {}
     with np.errstate(all='ignore'):   # absurd placements overflow to inf / nan: select_parts leaves them out
         for k, g, t in placed:
             box = crop_to_known(g.data, margin=0)
@@ -69,18 +71,31 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
             parts.append((k, d, crop_to_merged))
             corners = tf.apply(crop_to_merged, np.array([[0, 0], [d.shape[1], 0], [0, d.shape[0]],
                                                          [d.shape[1], d.shape[0]]], float))
-            boxes[k] = np.concatenate([corners.min(axis=0), corners.max(axis=0)]) / resolution   # x0 y0 x1 y1
+            metric[k] = np.concatenate([corners.min(axis=0), corners.max(axis=0)])   # x0 y0 x1 y1 (m)
     if not parts:
         return None
-    if not (math.isfinite(resolution) and resolution > 0):
-        raise GridError(f'merged resolution {resolution} is not a positive number')
-    keep, reasons = select_parts(boxes, min(max_cells, MAX_CELLS))
+    if not (math.isfinite(default) and default > 0):
+        raise GridError(f'merged resolution {default} is not a positive number')
+    max_cells = min(max_cells, MAX_CELLS)
+    chosen = default
+    keep, reasons = _select(metric, chosen, max_cells)
+    if resolution is None and len(keep) < len(metric):
+        # the default resolution (the original's rule) may itself come from an absurd map (1 um cells): then the
+        # resolution of another placed grid that keeps more grids is taken
+        tried = {chosen}
+        for k, g, _ in placed:
+            if k in metric and g.resolution not in tried:
+                tried.add(g.resolution)
+                keep_k, reasons_k = _select(metric, g.resolution, max_cells)
+                if len(keep_k) > len(keep):
+                    chosen, keep, reasons = g.resolution, keep_k, reasons_k
+    resolution = chosen
     if left_out is not None:
         left_out.update(reasons)
     parts = [p for p in parts if p[0] in keep]
     if not parts:
         return None
-    box = np.array([boxes[k] for k, _, _ in parts])
+    box = np.array([metric[k] for k, _, _ in parts]) / resolution
     lo = np.floor(box[:, :2].min(axis=0)) * resolution
     hi = np.ceil(box[:, 2:].max(axis=0)) * resolution
     width, height = (int(round(v)) for v in (hi - lo) / resolution)
@@ -89,6 +104,11 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     for _, data, crop_to_merged in parts:
         warp_into(canvas, data, merged_to_canvas @ crop_to_merged)
     return Grid(canvas, resolution, (float(lo[0]), float(lo[1]), 0.0), frame_id)
+
+
+def _select(metric: Dict[int, np.ndarray], resolution: float, max_cells: int) -> Tuple[List[int], Dict[int, str]]:
+    with np.errstate(all='ignore'):
+        return select_parts({k: b / resolution for k, b in metric.items()}, max_cells)
 
 
 def _cells(box: np.ndarray) -> float:

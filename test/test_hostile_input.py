@@ -250,3 +250,16 @@ def test_one_bad_robot_never_stops_the_estimation_of_the_others(shared_dir, rng)
     assert rot < 0.01 and disp < 0.1
     merged = pipeline.compose('world')
     assert merged is not None and valid_cells(merged.data)
+
+
+def test_an_absurd_resolution_does_not_set_the_merged_one():
+    """A 1 um map at the identity would set the merged resolution (the original's rule) and push every other map
+    out: the resolution of the others is taken instead."""
+    tiny = Grid(np.zeros((10, 10), np.int8), 1e-6)
+    good = [Grid(np.full((40, 60), 100, np.int8), 0.05, (1.0, 2.0, 0.0)) for _ in range(2)]
+    left_out = {}
+    merged = compose([tiny] + good, [np.eye(3), tf.rigid(3.0, 0.0, 0.0), tf.rigid(0.0, 4.0, 1.0)], left_out=left_out)
+    assert merged.resolution == 0.05 and not left_out   # the tiny map fits within one 5 cm cell
+    merged = compose([tiny] + good, [np.eye(3), tf.rigid(3.0, 0.0, 0.0), tf.rigid(0.0, 4.0, 1.0)], left_out=left_out,
+                     max_cells=10 ** 6)
+    assert merged.resolution == 0.05 and (merged.data == 100).sum() >= 2 * 40 * 60 * 0.9
