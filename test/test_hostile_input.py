@@ -263,3 +263,63 @@ def test_an_absurd_resolution_does_not_set_the_merged_one():
     merged = compose([tiny] + good, [np.eye(3), tf.rigid(3.0, 0.0, 0.0), tf.rigid(0.0, 4.0, 1.0)], left_out=left_out,
                      max_cells=10 ** 6)
     assert merged.resolution == 0.05 and (merged.data == 100).sum() >= 2 * 40 * 60 * 0.9
+
+
+# ------------------------------------------------------------------ offline merge_maps: same rules, one line each
+def _write_map(folder, name, data, origin=(0.0, 0.0, 0.0), mode='trinary'):
+    """A map_server map; in raw mode the pixels are the cell values (as uint8), so any int8 value can be written."""
+    import cv2
+    from multirobot_map_merge.mapio import data_to_image
+    img = data.view(np.uint8)[::-1] if mode == 'raw' else data_to_image(data)
+    cv2.imwrite(str(folder / f'{name}.pgm'), np.ascontiguousarray(img))
+    x, y, yaw = (f'{v:.6e}' for v in origin)   # PyYAML reads 1e+300 as a string, 1.000000e+300 as a float
+    (folder / f'{name}.yaml').write_text(f'image: {name}.pgm\nresolution: 0.05\norigin: [{x}, {y}, {yaw}]\n'
+                                         f'negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\nmode: {mode}\n')
+    return str(folder / f'{name}.yaml')
+
+
+def _merge_maps(args):
+    import subprocess
+    import sys
+    from pathlib import Path
+    tool = Path(__file__).resolve().parents[1] / 'nodes' / 'merge_maps'
+    return subprocess.run([sys.executable, str(tool), *args], capture_output=True, text=True, timeout=120)
+
+
+def test_merge_maps_reads_bad_cells_as_unknown_and_leaves_out_far_maps(tmp_path, rng):
+    import json
+    room = np.zeros((40, 40), np.int8)
+    room[0, :] = room[-1, :] = room[:, 0] = room[:, -1] = 100
+    corrupt = room.copy()
+    corrupt[5:10, 5:10] = rng.choice(np.array([101, 127, -2, -128], np.int8), (5, 5))
+    maps = [_write_map(tmp_path, 'good', room), _write_map(tmp_path, 'corrupt', corrupt, mode='raw'),
+            _write_map(tmp_path, 'far', room, origin=(4e12, 0.0, 0.0))]
+    poses = tmp_path / 'poses.yaml'
+    poses.write_text('poses: [[0, 0, 0], [3, 0, 0], [0, 0, 0]]\n')
+    out = tmp_path / 'merged'
+    proc = _merge_maps(['--known-poses', str(poses), '--output', str(out), '--transforms-json',
+                        str(tmp_path / 't.json'), *maps])
+    assert proc.returncode == 0, proc.stderr
+    warnings = [line for line in proc.stderr.splitlines() if 'warning' in line]
+    assert len(warnings) == 2, proc.stderr
+    assert 'corrupt.yaml: 25 cell(s)' in warnings[0] and 'read as unknown' in warnings[0]
+    assert 'far.yaml: left out' in warnings[1]
+    doc = json.loads((tmp_path / 't.json').read_text())
+    assert [m['included'] for m in doc['maps']] == [True, True, False]
+    from multirobot_map_merge.mapio import load_map
+    merged = load_map(str(out) + '.yaml')
+    assert merged.width == 100 and merged.height == 40   # the two rooms side by side, nothing of the far one
+
+
+def test_merge_maps_exit_codes(tmp_path):
+    room = np.zeros((20, 20), np.int8)
+    far = _write_map(tmp_path, 'far', room, origin=(1e300, 0.0, 0.0))
+    proc = _merge_maps(['--known-poses', str(tmp_path / 'p.yaml'), far])
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1   # unreadable poses file
+    (tmp_path / 'p.yaml').write_text('poses: [[.nan, 0, 0]]\n')
+    proc = _merge_maps(['--known-poses', str(tmp_path / 'p.yaml'), far])
+    assert proc.returncode == 2 and 'not finite' in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    (tmp_path / 'p.yaml').write_text('poses: [[0, 0, 0]]\n')
+    proc = _merge_maps(['--known-poses', str(tmp_path / 'p.yaml'), '--output', str(tmp_path / 'm'), far])
+    assert proc.returncode == 1, proc.stderr                                          # the only map is left out
+    assert 'far.yaml: left out' in proc.stderr and 'nothing to merge' in proc.stderr
