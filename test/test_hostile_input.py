@@ -323,3 +323,32 @@ def test_merge_maps_exit_codes(tmp_path):
     proc = _merge_maps(['--known-poses', str(tmp_path / 'p.yaml'), '--output', str(tmp_path / 'm'), far])
     assert proc.returncode == 1, proc.stderr                                          # the only map is left out
     assert 'far.yaml: left out' in proc.stderr and 'nothing to merge' in proc.stderr
+
+
+# ------------------------------------------------------------------ explore's costmap: same rule, never a stray error
+def test_explore_costmap_reads_invalid_cells_as_unknown_and_survives_any_update(rng):
+    from explore.costmap import NO_INFORMATION, Costmap, CostmapError
+    cm = Costmap()
+    assert cm.update_full(3, 1, 0.05, 0.0, 0.0, np.array([101, -2, 100], np.int8)) == 2
+    assert list(cm.data[0]) == [NO_INFORMATION, NO_INFORMATION, 254]
+    refused = 0
+    for _ in range(ROUNDS):
+        u = random_update_msg(rng, cm.data.shape)
+        before = cm.data.shape
+        try:
+            invalid = cm.update_partial(u.x, u.y, u.width, u.height, u.data)
+            assert 0 <= invalid <= len(u.data)
+        except CostmapError:
+            refused += 1
+        assert cm.data.shape == before
+        if rng.random() < 0.1:
+            m = random_map_msg(rng)
+            try:
+                cm.update_full(m.info.width, m.info.height, m.info.resolution, m.info.origin.position.x,
+                               m.info.origin.position.y, m.data)
+            except CostmapError:
+                refused += 1
+        translated = cm.data.reshape(-1)
+        # only the costs a valid occupancy can give: FREE, the ramp, INSCRIBED, LETHAL, NO_INFORMATION
+        assert set(np.unique(translated)) <= set(cm.table[:101]) | {NO_INFORMATION}
+    assert refused
