@@ -352,3 +352,31 @@ def test_explore_costmap_reads_invalid_cells_as_unknown_and_survives_any_update(
         # only the costs a valid occupancy can give: FREE, the ramp, INSCRIBED, LETHAL, NO_INFORMATION
         assert set(np.unique(translated)) <= set(cm.table[:101]) | {NO_INFORMATION}
     assert refused
+
+
+# ------------------------------------------------------------------ fleet_sim: a world file with invalid cells
+def test_fleet_sim_world_file_invalid_cells_read_as_unknown(tmp_path, caplog):
+    from fleet_sim.params import FleetSimParams
+    from fleet_sim.sim import build_world
+    world = np.zeros((60, 80), np.int8)
+    world[0, :] = world[-1, :] = world[:, 0] = world[:, -1] = 100
+    world[10:12, 10:14] = [[101, 127, -2, -128], [120, 0, 100, -1]]
+    path = _write_map(tmp_path, 'world', world, mode='raw')
+    with caplog.at_level('WARNING'):
+        grid = build_world(FleetSimParams(world=path))
+    assert valid_cells(grid.data)
+    assert (grid.data[10:12, 10:14] == [[-1, -1, -1, -1], [-1, 0, 100, -1]]).all()
+    assert any('5 cell(s)' in r.getMessage() and 'world.yaml' in r.getMessage() for r in caplog.records)
+
+
+def test_tilted_origin_is_recorded_not_logged(caplog):
+    msg = OccupancyGrid()
+    msg.info.width = msg.info.height = 1
+    msg.info.resolution = 0.05
+    msg.info.origin.orientation.x, msg.info.origin.orientation.w = 0.3, 0.95
+    msg.data = [0]
+    with caplog.at_level('DEBUG'):
+        g = grid_from_msg(msg)
+    assert g.extra['tilted_origin'] == (0.3, 0.0, 0.0, 0.95) and not caplog.records   # the node warns, naming
+    msg.info.origin.orientation.x = 0.0
+    assert 'tilted_origin' not in grid_from_msg(msg).extra
