@@ -5,8 +5,8 @@ placed right at the end.
 
 Params: ~topic (merged map), ~duration (s measured), ~merging_rate (Hz), ~window (s, default 5), ~min_sent
 (messages the fuzz publisher must have sent), ~node (the map_merge node name), ~good (list "/ns=map.yaml" specs of
-the good robots), ~truth (truth.json of their poses), ~bad (list of bad robot namespaces, each must be named in a
-warning of the node on /rosout).
+the good robots), ~truth (truth.json of their poses), ~shift ([x, y]: their init poses are the truth poses shifted
+by this), ~bad (list of bad robot namespaces, each must be named in a warning of the node on /rosout).
 """
 import math
 import sys
@@ -21,7 +21,7 @@ import rostest
 from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Log
 
-from mm_common import robot_maps, truth_poses, wall_agreement
+from mm_common import rigid, robot_maps, truth_poses, wall_agreement
 
 PKG = 'multirobot_map_merge'
 
@@ -90,7 +90,9 @@ class FuzzCheck(unittest.TestCase):
         self.assertTrue(rosnode.rosnode_ping(node, max_count=1), f'{node} does not answer (seed {seed})')
 
         maps = robot_maps(rospy.get_param('~good'))
-        poses = truth_poses(rospy.get_param('~truth'), rospy.get_param('~good'))
+        shift = rigid(*rospy.get_param('~shift', [0.0, 0.0]), 0.0)   # the init poses are the truth shifted by this
+        truth = truth_poses(rospy.get_param('~truth'), rospy.get_param('~good'))
+        poses = {ns: shift @ pose for ns, pose in truth.items()}
         for ns, grid in maps.items():
             agreement = wall_agreement(grid, poses[ns], final)
             self.assertGreaterEqual(agreement, 0.9, f'good robot {ns} misplaced: {agreement:.2f} of its walls on '

@@ -81,7 +81,7 @@ def bad_update(rng):
 
 def main():
     rospy.init_node('mm_fuzz_publisher')
-    seed = int(rospy.get_param('~seed', 0)) or int.from_bytes(os.urandom(4), 'little')
+    seed = int(rospy.get_param('~seed', 0)) or int.from_bytes(os.urandom(4), 'little') % (1 << 31)   # XML-RPC int
     rospy.set_param('/mm_fuzz/seed', seed)
     rospy.loginfo('mm_fuzz_publisher: seed %d (replay with _seed:=%d)', seed, seed)
     print(f'mm_fuzz_publisher: seed {seed}', flush=True)
