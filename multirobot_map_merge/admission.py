@@ -18,6 +18,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from .features import crop_to_known
 from .grid import OCCUPIED, UNKNOWN, Grid
 
 # A map larger than this at the working resolution (8192 x 8192 pixels, 410 m square at 5 cm; 16 x the largest dev
@@ -44,12 +45,8 @@ def clean_cells(data: np.ndarray) -> Tuple[np.ndarray, int]:
 
 def known_extent(data: np.ndarray) -> Tuple[int, int]:
     """(rows, cols) of the bounding box of the known cells, (0, 0) when none."""
-    known = data >= 0
-    rows = np.flatnonzero(known.any(axis=1))
-    if rows.size == 0:
-        return 0, 0
-    cols = np.flatnonzero(known.any(axis=0))
-    return int(rows[-1] - rows[0] + 1), int(cols[-1] - cols[0] + 1)
+    box = crop_to_known(data, margin=0)
+    return (0, 0) if box is None else (int(box[1] - box[0]), int(box[3] - box[2]))
 
 
 def matching_refusal(data: np.ndarray, resolution: float, min_work_resolution: float) -> str:
