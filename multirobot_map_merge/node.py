@@ -34,8 +34,8 @@ the robot instead of being merged; the reference robot does not jump between est
 missing is retried at every discovery pass (as the original) with a throttled warning; the tf child frame is the
 robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '/', as tf2 requires. Cell values
 outside -1 and 0..100 are read as unknown, and a robot whose map or placement would make the merged grid unusable
-(non-finite, over ~max_merged_cells) is left out of that cycle, each with a throttled warning naming the robot (admission.py,
-compose.select_parts); the other robots are merged as usual.
+(non-finite, over ~max_merged_cells) is left out of that cycle, each with a throttled warning naming the robot
+(admission.py, compose.select_parts); the other robots are merged as usual.
 `~status` transforms are robot map frame -> world_frame as placed by the latest merge cycle.
 """
 from __future__ import annotations

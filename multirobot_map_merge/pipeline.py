@@ -94,7 +94,8 @@ class MergingPipeline:
         """Grid k's cells (corner coordinates) -> cells of the reference grid (or of the first placed grid)."""
         ref = self.reference
         if ref is None:
-            ref = next((i for i, t in enumerate(self.transforms) if t is not None and self.composable[i] is not None), None)
+            ref = next((i for i, t in enumerate(self.transforms)
+                        if t is not None and self.composable[i] is not None), None)
         if ref is None or self.transforms[k] is None or self.composable[k] is None:
             return None
         g_ref = self.composable[ref]
