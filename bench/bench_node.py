@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Benchmark of the map_merge node (not a test: it prints figures and compares them with the issue's targets).
 
-    scripts/env.sh python bench/bench_node.py [--duration 600] [--robots 30] [--content reveal|static]
-        [--map-rate 1] [--update-rate 1] [--merging-rate 4] [--param name:=value ...] [--json FILE]
+    scripts/env.sh python bench/bench_node.py [--duration 600] [--robots 30] [--content reveal|grow|static]
+        [--late N] [--map-rate 1] [--update-rate 1] [--merging-rate 4] [--param name:=value ...] [--json FILE]
 
 It starts its own roscore (on a free port), a publisher process for the robots of the large dev scenario
 (../shared/data/dev/large30_hospital_section, or --data) and the map_merge node, then measures from outside:
@@ -19,7 +19,11 @@ Robot `robot_NN` publishes `robot_NN/map` (latched, frame robot_NN/map) at --map
     are known; then tiles are revealed nearest first, so that the whole map is known after --reveal s (default:
     half the run). Each update tick sends one message per newly revealed tile; each full map the current state.
     After the reveal the maps no longer change: each tick re-sends one tile with unchanged content.
+  * --content grow: as reveal, but each full map is only the tile-aligned bounding box of the known tiles (its size
+    and origin grow as gmapping's do); a tile outside the current box sends a full map instead of an update.
   * --content static: the whole map from the start, updates re-send tiles (content never changes).
+  * --late N: the last N robots appear late: each advertises its topics and starts publishing at its own time,
+    evenly spread over the first --late-window seconds (default: a third of the run).
 The publisher and the measuring subscriber run in other processes than the node; on this shared 2-core machine
 wall-clock figures are inflated by other load, CPU-seconds much less so.
 """
@@ -74,27 +78,37 @@ def run_publisher(args: argparse.Namespace) -> None:
         centre = lambda rc: np.hypot(*(grid.cell_to_map() @ [rc[1] + TILE / 2, rc[0] + TILE / 2, 1.0])[:2])
         tiles.sort(key=centre)
         shown = np.full_like(grid.data, -1)
-        n_start = sum(centre(t) <= START_RADIUS for t in tiles) if args.content == 'reveal' else len(tiles)
+        n_start = sum(centre(t) <= START_RADIUS for t in tiles) if args.content != 'static' else len(tiles)
         n_start = max(n_start, 1)
         for r, c in tiles[:n_start]:
             shown[r:r + TILE, c:c + TILE] = grid.data[r:r + TILE, c:c + TILE]
-        robots.append(dict(ns=ns, grid=grid, tiles=tiles, revealed=n_start, shown=shown,
-                           map_pub=rospy.Publisher(ns + '/map', OccupancyGrid, queue_size=2, latch=True),
-                           upd_pub=rospy.Publisher(ns + '/map_updates', OccupancyGridUpdate, queue_size=10),
-                           phase=rng.uniform(0.0, 1.0)))
+        robots.append(dict(ns=ns, grid=grid, tiles=tiles, revealed=n_start, shown=shown, map_pub=None, upd_pub=None,
+                           box=tile_box(tiles[:n_start], grid.data.shape), phase=rng.uniform(0.0, 1.0)))
     reveal_s = args.reveal if args.reveal is not None else args.duration / 2.0
+    late_window = args.late_window if args.late_window is not None else args.duration / 3.0
+    first_late = len(robots) - min(args.late, len(robots))
+    joins = {id(r): (k - first_late + 1) * late_window / max(args.late, 1) if k >= first_late else 0.0
+             for k, r in enumerate(robots)}
+
+    def advertise(robot) -> None:
+        robot['map_pub'] = rospy.Publisher(robot['ns'] + '/map', OccupancyGrid, queue_size=2, latch=True)
+        robot['upd_pub'] = rospy.Publisher(robot['ns'] + '/map_updates', OccupancyGridUpdate, queue_size=10)
 
     def full_map(robot) -> OccupancyGrid:
         g = robot['grid']
         from multirobot_map_merge.grid import Grid
-        return grid_to_msg(Grid(robot['shown'], g.resolution, g.origin, g.frame_id), stamp=rospy.Time.now())
+        r0, r1, c0, c1 = robot['box'] if args.content == 'grow' else (0, g.height, 0, g.width)
+        origin = tuple((g.cell_to_map() @ [c0, r0, 1.0])[:2]) + (g.origin[2],)
+        return grid_to_msg(Grid(robot['shown'][r0:r1, c0:c1], g.resolution, origin, g.frame_id),
+                           stamp=rospy.Time.now())
 
     def tile_update(robot, r: int, c: int) -> OccupancyGridUpdate:
         block = robot['shown'][r:r + TILE, c:c + TILE]
+        r0, _, c0, _ = robot['box'] if args.content == 'grow' else (0, 0, 0, 0)
         u = OccupancyGridUpdate()
         u.header.stamp = rospy.Time.now()
         u.header.frame_id = robot['grid'].frame_id
-        u.x, u.y, u.height, u.width = c, r, block.shape[0], block.shape[1]
+        u.x, u.y, u.height, u.width = c - c0, r - r0, block.shape[0], block.shape[1]
         u.data = block.reshape(-1).tolist()
         return u
 
@@ -103,34 +117,55 @@ def run_publisher(args: argparse.Namespace) -> None:
         tiles, g = robot['tiles'], robot['grid']
         due = len(tiles) if reveal_s <= 0 else int(math.ceil(len(tiles) * min(t / reveal_s, 1.0)))
         out = []
-        while args.content == 'reveal' and robot['revealed'] < due:
+        while args.content != 'static' and robot['revealed'] < due:
             r, c = tiles[robot['revealed']]
             robot['revealed'] += 1
             robot['shown'][r:r + TILE, c:c + TILE] = g.data[r:r + TILE, c:c + TILE]
-            out.append(tile_update(robot, r, c))
+            box = tile_box(tiles[:robot['revealed']], g.data.shape)
+            if args.content == 'grow' and box != robot['box']:
+                robot['box'] = box
+                out.append(None)   # the map grew: a full map, as gmapping sends when it resizes
+            else:
+                out.append(tile_update(robot, r, c))
         if not out:
             r, c = tiles[int(rng.integers(robot['revealed']))]   # a known tile, content unchanged
             out.append(tile_update(robot, r, c))
         return out
 
-    for robot in robots:
+    for robot in robots[:first_late]:
+        advertise(robot)
         robot['map_pub'].publish(full_map(robot))
     print('publisher: ready', flush=True)
     t0 = time.monotonic()
-    next_map = {id(r): t0 + r['phase'] / args.map_rate for r in robots}
-    next_upd = {id(r): t0 + r['phase'] / args.update_rate for r in robots}
+    next_map = {id(r): t0 + joins[id(r)] + r['phase'] / args.map_rate for r in robots}
+    next_upd = {id(r): t0 + joins[id(r)] + r['phase'] / args.update_rate for r in robots}
     while not rospy.is_shutdown():
         now = time.monotonic()
         for robot in robots:
+            if robot['map_pub'] is None:
+                if now < t0 + joins[id(robot)]:
+                    continue
+                advertise(robot)   # a late robot appears
+                print(f"publisher: {robot['ns']} appears at {now - t0:.0f} s", flush=True)
             if now >= next_upd[id(robot)]:
                 next_upd[id(robot)] += 1.0 / args.update_rate
                 for msg in updates(robot, now - t0):
-                    robot['upd_pub'].publish(msg)
+                    if msg is None:
+                        robot['map_pub'].publish(full_map(robot))
+                    else:
+                        robot['upd_pub'].publish(msg)
             if now >= next_map[id(robot)]:
                 next_map[id(robot)] += 1.0 / args.map_rate
                 robot['map_pub'].publish(full_map(robot))
         soonest = min(min(next_map.values()), min(next_upd.values()))
         time.sleep(max(0.0, min(soonest - time.monotonic(), 0.05)))
+
+
+def tile_box(tiles, shape):
+    """(row0, row1, col0, col1) of the tiles (TILE-aligned, clipped to the map shape)."""
+    rows = [r for r, _ in tiles]
+    cols = [c for _, c in tiles]
+    return (min(rows), min(max(rows) + TILE, shape[0]), min(cols), min(max(cols) + TILE, shape[1]))
 
 
 # ---------------------------------------------------------------------------------------------- measurement
@@ -212,6 +247,10 @@ def run(args: argparse.Namespace) -> dict:
                          '--update-rate', str(args.update_rate), '--duration', str(args.duration)]
         if args.reveal is not None:
             publisher_cmd += ['--reveal', str(args.reveal)]
+        if args.late:
+            publisher_cmd += ['--late', str(args.late)]
+        if args.late_window is not None:
+            publisher_cmd += ['--late-window', str(args.late_window)]
         spawn('robots', publisher_cmd)
         deadline = time.monotonic() + 120.0
         while 'publisher: ready' not in Path(logs['robots'].name).read_text():
@@ -286,7 +325,7 @@ def run(args: argparse.Namespace) -> dict:
     in_run = [t for t in times if t_start <= t <= t_end]
     gaps = [b - a for a, b in zip(in_run, in_run[1:])]
     warm = [s for s in samples if s['t'] >= args.duration / 2.0]
-    reveal_s = (args.reveal if args.reveal is not None else args.duration / 2.0) if args.content == 'reveal' else 0.0
+    reveal_s = (args.reveal if args.reveal is not None else args.duration / 2.0) if args.content != 'static' else 0.0
 
     def phase_cpu(lo: float, hi: float) -> Optional[float]:
         """Average cores over the samples that end in (lo, hi] (each sample covers the interval before it)."""
@@ -336,12 +375,15 @@ def report(r: dict) -> None:
         print('| ' + ' | '.join(row) + ' |')
 
 
-def main(argv: Optional[List[str]] = None) -> None:
+def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--duration', type=float, default=600.0, help='seconds measured (the issue: 10 minutes)')
     ap.add_argument('--robots', type=int, default=30)
     ap.add_argument('--data', type=Path, default=DEFAULT_DATA, help='scenario folder with truth.json + maps')
-    ap.add_argument('--content', choices=('reveal', 'static'), default='reveal')
+    ap.add_argument('--content', choices=('reveal', 'grow', 'static'), default='reveal')
+    ap.add_argument('--late', type=int, default=0, help='robots (the last ones) that appear late')
+    ap.add_argument('--late-window', type=float, default=None,
+                    help='seconds over which the late robots appear (default: a third of the run)')
     ap.add_argument('--reveal', type=float, default=None, help='seconds until every map is known (default: half)')
     ap.add_argument('--map-rate', type=float, default=1.0, help='Hz of full maps per robot')
     ap.add_argument('--update-rate', type=float, default=1.0, help='Hz of map_updates per robot')
@@ -353,11 +395,16 @@ def main(argv: Optional[List[str]] = None) -> None:
     args = ap.parse_args(argv)
     if not (args.map_rate > 0 and args.update_rate > 0 and args.duration > 0 and args.robots > 0):
         ap.error('rates, duration and robots must be positive')
+    if not args.publisher and not (args.data / 'truth.json').is_file():
+        ap.error(f'{args.data}/truth.json not found (--data)')
+    return args
+
+
+def main(argv: Optional[List[str]] = None) -> None:
+    args = parse_args(argv)
     if args.publisher:
         run_publisher(args)
         return
-    if not (args.data / 'truth.json').is_file():
-        ap.error(f'{args.data}/truth.json not found (--data)')
     result = run(args)
     report(result)
     if args.json:

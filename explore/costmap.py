@@ -3,6 +3,10 @@
 A ``Costmap2D``-like byte grid fed from ``nav_msgs/OccupancyGrid`` messages and ``map_msgs/OccupancyGridUpdate``
 patches. Occupancy values are translated to cost bytes through the original 256-entry table (explore.md §4.2).
 
+Invalid occupancies (outside -1 and 0..100, i.e. bytes 101..254) are read as unknown (NO_INFORMATION) by the
+Costmap, the package's one rule for them (multirobot_map_merge/admission.py); update_full and update_partial return
+how many there were so that the node can warn. `translation_table()` itself keeps the original's entries.
+
 Conventions: ``data`` is a uint8 array of shape (size_y, size_x), row-major as the original
 (flat index = my * size_x + mx); row 0 is at the origin (lowest y). The origin's yaw is ignored, as in the original.
 """
@@ -22,6 +26,7 @@ FREE_SPACE = 0
 INSCRIBED_INFLATED_OBSTACLE = 253
 LETHAL_OBSTACLE = 254
 NO_INFORMATION = 255
+OCCUPIED_MAX = 100   # occupancy values are -1 and 0..100
 
 # Refuse grids above 2**28 cells (256 MiB of bytes): such a message is malformed, not a map.
 MAX_CELLS = 1 << 28
@@ -77,6 +82,12 @@ def translation_table(probability_map: bool = False, free_threshold: int = 25,
 
 
 ORIGINAL_TABLE = translation_table()
+INVALID = slice(OCCUPIED_MAX + 1, NO_INFORMATION)   # bytes 101..254: int8 values 101..127 and -128..-2
+
+
+def count_invalid(values: np.ndarray) -> int:
+    """How many occupancy bytes are invalid (101..254)."""
+    return int(np.count_nonzero((values > OCCUPIED_MAX) & (values < NO_INFORMATION)))
 
 
 def as_occupancy_bytes(data: CellData) -> np.ndarray:
@@ -105,6 +116,7 @@ class Costmap:
     def __init__(self, probability_map: bool = False, free_threshold: int = 25, occupied_threshold: int = 65,
                  by_threshold: bool = False) -> None:
         self.table = translation_table(probability_map, free_threshold, occupied_threshold, by_threshold)
+        self.table[INVALID] = NO_INFORMATION   # invalid occupancies read as unknown (module doc)
         self.lock = threading.RLock()
         self.data = np.zeros((0, 0), dtype=np.uint8)
         self.resolution = 0.0
@@ -146,8 +158,9 @@ class Costmap:
     # -- message application ---------------------------------------------------------------------------------------
 
     def update_full(self, width: int, height: int, resolution: float, origin_x: float, origin_y: float,
-                    data: CellData, frame_id: str = '') -> None:
-        """Apply a full OccupancyGrid: re-allocate to width×height and translate min(width·height, len(data)) cells.
+                    data: CellData, frame_id: str = '') -> int:
+        """Apply a full OccupancyGrid: re-allocate to width×height and translate min(width·height, len(data)) cells;
+        returns the number of invalid occupancies read as unknown.
 
         Cells without data are NO_INFORMATION (the original leaves its uninitialised default, in practice 0;
         unknown is the honest value). Extra data is ignored. Raises InvalidMapError and leaves the grid unchanged on
@@ -175,9 +188,11 @@ class Costmap:
             self.origin_y = float(origin_y)
             self.frame_id = frame_id
             self.has_map = True
+        return count_invalid(values[:m])
 
-    def update_partial(self, x: int, y: int, width: int, height: int, data: CellData, frame_id: str = '') -> None:
+    def update_partial(self, x: int, y: int, width: int, height: int, data: CellData, frame_id: str = '') -> int:
         """Apply an OccupancyGridUpdate patch, clipped to the grid; size, resolution and origin never change.
+        Returns the number of invalid occupancies (read as unknown) in the copied part.
 
         Raises InvalidUpdateError (grid and frame unchanged) for a negative corner (the original logs ERROR and drops
         it), fewer than width·height values (the original reads past the buffer), or no full map yet. A patch that
@@ -201,7 +216,10 @@ class Costmap:
                 _log.warning("received update doesn't fully fit into existing map, only part will be copied. "
                              "received: [%d, %d], [%d, %d] map is: [0, %d], [0, %d]", x, xn, y, yn, sx, sy)
             cw, ch = max(0, min(xn, sx) - x), max(0, min(yn, sy) - y)
+            invalid = 0
             if cw and ch:
                 patch = values[:width * height].reshape(height, width)[:ch, :cw]
                 self.data[y:y + ch, x:x + cw] = self.table[patch]
+                invalid = count_invalid(patch)
             self.frame_id = frame_id
+        return invalid

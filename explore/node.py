@@ -48,7 +48,7 @@ from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.ros_conversions import grid_from_msg
 from multirobot_map_merge.throttle import Throttle
 
-from .costmap import Costmap, CostmapError
+from .costmap import Costmap
 from .frontier_search import Frontier, FrontierSearch
 from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
@@ -127,20 +127,27 @@ class ExploreNode:
     def _on_map(self, msg: OccupancyGrid) -> None:
         o = msg.info.origin.position
         try:
-            self.costmap.update_full(msg.info.width, msg.info.height, msg.info.resolution, o.x, o.y, msg.data,
-                                     msg.header.frame_id)
-        except CostmapError as e:
+            invalid = self.costmap.update_full(msg.info.width, msg.info.height, msg.info.resolution, o.x, o.y,
+                                               msg.data, msg.header.frame_id)
+        except Exception as e:   # CostmapError, or anything else: no exception leaves a callback
             if self._throttle('map'):
                 rospy.logwarn('explore: map on %s refused: %s', self._map_sub.resolved_name, e)
             return
+        self._warn_invalid(invalid, self._map_sub.resolved_name)
         self._first_map.set()
 
     def _on_update(self, msg: OccupancyGridUpdate) -> None:
         try:
-            self.costmap.update_partial(msg.x, msg.y, msg.width, msg.height, msg.data, msg.header.frame_id)
-        except CostmapError as e:
+            invalid = self.costmap.update_partial(msg.x, msg.y, msg.width, msg.height, msg.data, msg.header.frame_id)
+        except Exception as e:   # CostmapError, or anything else: no exception leaves a callback
             if self._throttle('update'):
                 rospy.logwarn('explore: map update refused: %s', e)
+            return
+        self._warn_invalid(invalid, self._updates_sub.resolved_name if self._updates_sub else 'map updates')
+
+    def _warn_invalid(self, count: int, topic: str) -> None:
+        if count and self._throttle('invalid_cells'):
+            rospy.logwarn('explore: %d cell(s) on %s with values outside -1 and 0..100 read as unknown', count, topic)
 
     def _on_goal_done(self, target: Tuple[float, float], state: int, _result) -> None:
         # actionlib's thread: record the result and wake the planner, never send a goal from here

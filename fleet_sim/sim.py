@@ -13,6 +13,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
+from multirobot_map_merge.admission import clean_cells
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import MapFileError
 
@@ -33,6 +34,11 @@ def build_world(params: FleetSimParams) -> Grid:
             raise ParamError(f"~world: cannot load {params.world!r}: {e}") from None
         if abs(world.origin[2]) > 1e-9:
             raise ParamError(f"~world: {params.world!r} has a rotated origin, which is not supported")
+        data, invalid = clean_cells(world.data)
+        if invalid:   # the package's one rule (admission.py): read as unknown, which blocks robots and beams
+            _log.warning("~world: %s: %d cell(s) with values outside -1 and 0..100 read as unknown", params.world,
+                         invalid)
+            world = Grid(data, world.resolution, world.origin, world.frame_id, world.stamp, dict(world.extra))
         return world
     try:
         return make_floor_plan(params.world_seed, params.world_width, params.world_height)

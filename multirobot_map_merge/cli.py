@@ -8,8 +8,12 @@ Writes PREFIX.pgm + PREFIX.yaml as map_saver does, a PNG preview (PREFIX.png unl
 overlay (PREFIX_overlay.png: each map in its own colour, with a legend), and with --transforms-json the placement
 of every map (the format of ../shared/eval/README.md). With --bag, every nav_msgs/OccupancyGrid topic <ns>/map of
 the bag (with <ns>/map_updates applied) is one robot, merged as it was at the end of the bag or at --at seconds.
-On a terminal, an estimation that takes over a second shows its progress. Exit code 2 and a one-line reason on
-bad input.
+On a terminal, an estimation that takes over a second shows its progress.
+Exit codes: 0 merged (maybe with warnings), 1 nothing to merge (no map placed with a known cell), 2 bad input (a
+map, poses file or bag that cannot be read or is invalid, bad options), with a one-line reason. A map that can be
+read but not used whole gets a one-line warning: cells outside -1 and 0..100 are read as unknown; a map that cannot
+be matched (too small or too large at the working resolution) or whose placement would make the merged map
+unusable (not finite, over 2^28 cells) is left out (`"included": false` in --transforms-json).
 
 POSES.yaml gives the pose of each map's frame in the world (metres, radians), by file name or in order:
     poses: {map_00.yaml: [0.0, 0.0, 0.0], map_01.yaml: {x: 4.2, y: -1.0, yaw: 1.57}}
@@ -20,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -28,6 +33,7 @@ from typing import List, Optional, Sequence, Tuple
 import yaml
 
 from . import transforms as tf
+from .admission import describe_invalid
 from .features import FEATURE_TYPES
 from .known_poses import InitPose
 from .grid import Grid
@@ -101,6 +107,8 @@ def read_poses(path: str, maps: Sequence[str]) -> List[InitPose]:
                 out.append(InitPose(x, y, yaw))
         except (TypeError, ValueError):
             raise UsageError(f'{path}: pose of {os.path.basename(m)} is not [x, y, yaw] numbers: {e!r}')
+        if not all(math.isfinite(v) for v in (out[-1].x, out[-1].y, out[-1].yaw)):
+            raise UsageError(f'{path}: pose of {os.path.basename(m)} is not finite: {e!r}')
     return out
 
 
@@ -135,14 +143,24 @@ def transforms_document(names: Sequence[str], pipeline: MergingPipeline, estimat
                         key: str = 'file'):
     """key: 'file' (map files) or 'robot' (bag robot namespaces)."""
     entries = []
-    for name, t in zip(names, pipeline.transforms):
-        if t is None:
+    for k, (name, t) in enumerate(zip(names, pipeline.transforms)):
+        if t is None or k in pipeline.left_out:
             entries.append({key: name, 'included': False})
         else:
             x, y, yaw, scale = tf.params(t)
             entries.append({key: name, 'included': True,
                             'transform': {'x': x, 'y': y, 'yaw': yaw, 'scale': scale}})
     return {'maps': entries, 'reference': pipeline.reference, 'estimate_ms': estimate_ms, 'compose_ms': compose_ms}
+
+
+def warn_unused(maps: Sequence[str], pipeline: MergingPipeline) -> None:
+    """One line per map that was not used whole (admission.py, compose.select_parts)."""
+    for k, count in sorted(pipeline.invalid_cells.items()):
+        print(f'merge_maps: warning: {maps[k]}: {describe_invalid(count)}', file=sys.stderr)
+    for k, reason in sorted(pipeline.refused.items()):
+        print(f'merge_maps: warning: {maps[k]}: left out: {reason}', file=sys.stderr)
+    for k, reason in sorted(pipeline.left_out.items()):
+        print(f'merge_maps: warning: {maps[k]}: left out: {reason}', file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -158,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'merge_maps: {sum(g is not None for g in grids)} maps loaded', file=sys.stderr, flush=True)
 
     pipeline = MergingPipeline(settings)
-    pipeline.feed(grids)
+    pipeline.feed(grids, matching=poses is None)
     t0 = time.perf_counter()
     if poses is not None:
         pipeline.set_known_poses(poses, legacy=args.legacy_cell_poses)
@@ -172,7 +190,8 @@ def run(args: argparse.Namespace) -> int:
     estimate_ms = (time.perf_counter() - t0) * 1000.0
     merged = pipeline.compose('map')
     compose_ms = pipeline.compose_seconds * 1000.0
-    placed = sum(t is not None for t in pipeline.transforms)
+    warn_unused(names, pipeline)
+    placed = sum(t is not None and k not in pipeline.left_out for k, t in enumerate(pipeline.transforms))
     print(f'merge_maps: {placed} of {len(grids)} maps placed (estimate {estimate_ms:.0f} ms, '
           f'compose {compose_ms:.0f} ms)', file=sys.stderr, flush=True)
 
@@ -190,7 +209,8 @@ def run(args: argparse.Namespace) -> int:
     png = save_png(merged, args.png or args.output + '.png')
     labels = [n if args.bag else os.path.basename(n) for n in names]
     pairs = used_pairs(pipeline.last_estimate.pairs, pipeline.transforms) if poses is None else []
-    overlay = save_overlay(overlay_path(png), grids, pipeline.transforms, labels, pairs)
+    shown = [None if k in pipeline.left_out else t for k, t in enumerate(pipeline.transforms)]
+    overlay = save_overlay(overlay_path(png), grids, shown, labels, pairs)
     print(f'merge_maps: wrote {yaml_path}, {png} and {overlay}', file=sys.stderr)
     return 0
 

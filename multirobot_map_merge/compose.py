@@ -7,7 +7,7 @@ the canvas, so many small maps on a large canvas stay cheap.
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -15,6 +15,9 @@ import numpy as np
 from . import transforms as tf
 from .features import crop_to_known
 from .grid import MAX_CELLS, UNKNOWN, Grid, GridError
+
+# merged-cell coordinates beyond this cannot be placed to a cell: a double holds 53 bits, and compose subtracts them
+MAX_COORDINATE = float(1 << 40)
 
 # index (pixel centre) coordinates are corner coordinates shifted by half a cell
 _TO_CORNER = tf.translation(0.5, 0.5)
@@ -39,38 +42,118 @@ def warp_into(canvas: np.ndarray, src: np.ndarray, src_to_canvas: np.ndarray) ->
 
 
 def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.ndarray]],
-            resolution: Optional[float] = None, frame_id: str = '') -> Optional[Grid]:
+            resolution: Optional[float] = None, frame_id: str = '',
+            left_out: Optional[Dict[int, str]] = None, max_cells: int = MAX_CELLS) -> Optional[Grid]:
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
-    of the first placed grid) and its origin is the corner of the smallest canvas holding every known cell.
-    Returns None when no grid with a known cell is placed.
+    of the first placed grid; unless another placed grid's resolution lets more grids in) and its origin is the
+    corner of the smallest canvas holding every known cell. Returns None when no grid with a known cell is placed.
+    A grid whose placement is not finite, or that would make the merged grid larger than `max_cells` (at most
+    MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and the reason.
+    GridError only for a bad `resolution` argument.
     """
-    placed = [(g, t) for g, t in zip(grids, transforms) if g is not None and t is not None and not g.is_empty()]
-    if resolution is None:
-        ref = next((g for g, t in placed if np.allclose(t, np.eye(3))), placed[0][0] if placed else None)
-        resolution = ref.resolution if ref is not None else 0.0
-    parts = []
-    for g, t in placed:
-        box = crop_to_known(g.data, margin=0)
-        if box is None:
-            continue
-        r0, r1, c0, c1 = box
-        crop_to_merged = t @ g.cell_to_map() @ tf.translation(c0, r0)
-        parts.append((g.data[r0:r1, c0:c1], crop_to_merged))
+    placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))
+              if g is not None and t is not None and not g.is_empty()]
+    default = resolution
+    if default is None:
+        ref = next((g for _, g, t in placed if np.allclose(t, np.eye(3))), placed[0][1] if placed else None)
+        default = ref.resolution if ref is not None else 0.0
+    parts, metric = [], {}
+    with np.errstate(all='ignore'):   # absurd placements overflow to inf / nan: select_parts leaves them out
+        for k, g, t in placed:
+            box = crop_to_known(g.data, margin=0)
+            if box is None:
+                continue
+            r0, r1, c0, c1 = box
+            d = g.data[r0:r1, c0:c1]
+            crop_to_merged = np.asarray(t, float) @ g.cell_to_map() @ tf.translation(c0, r0)
+            parts.append((k, d, crop_to_merged))
+            corners = tf.apply(crop_to_merged, np.array([[0, 0], [d.shape[1], 0], [0, d.shape[0]],
+                                                         [d.shape[1], d.shape[0]]], float))
+            metric[k] = np.concatenate([corners.min(axis=0), corners.max(axis=0)])   # x0 y0 x1 y1 (m)
     if not parts:
         return None
-    if not (math.isfinite(resolution) and resolution > 0):
-        raise GridError(f'merged resolution {resolution} is not a positive number')
-    corners = np.vstack([tf.apply(m, np.array([[0, 0], [d.shape[1], 0], [0, d.shape[0]], [d.shape[1], d.shape[0]]],
-                                             float)) for d, m in parts])
-    lo = np.floor(corners.min(axis=0) / resolution) * resolution
-    hi = np.ceil(corners.max(axis=0) / resolution) * resolution
+    if not (math.isfinite(default) and default > 0):
+        raise GridError(f'merged resolution {default} is not a positive number')
+    max_cells = min(max_cells, MAX_CELLS)
+    chosen = default
+    keep, reasons = _select(metric, chosen, max_cells)
+    if resolution is None and len(keep) < len(metric):
+        # the default resolution (the original's rule) may itself come from an absurd map (1 um cells): then the
+        # resolution of another placed grid that keeps more grids is taken
+        tried = {chosen}
+        for k, g, _ in placed:
+            if k in metric and g.resolution not in tried:
+                tried.add(g.resolution)
+                keep_k, reasons_k = _select(metric, g.resolution, max_cells)
+                if len(keep_k) > len(keep):
+                    chosen, keep, reasons = g.resolution, keep_k, reasons_k
+    resolution = chosen
+    if left_out is not None:
+        left_out.update(reasons)
+    parts = [p for p in parts if p[0] in keep]
+    if not parts:
+        return None
+    box = np.array([metric[k] for k, _, _ in parts]) / resolution
+    lo = np.floor(box[:, :2].min(axis=0)) * resolution
+    hi = np.ceil(box[:, 2:].max(axis=0)) * resolution
     width, height = (int(round(v)) for v in (hi - lo) / resolution)
-    if width * height > MAX_CELLS:
-        raise GridError(f'merged grid of {width} x {height} cells is too large: are the transforms sane?')
     canvas = np.full((max(height, 1), max(width, 1)), UNKNOWN, np.int8)
     merged_to_canvas = tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1])
-    for data, crop_to_merged in parts:
+    for _, data, crop_to_merged in parts:
         warp_into(canvas, data, merged_to_canvas @ crop_to_merged)
     return Grid(canvas, resolution, (float(lo[0]), float(lo[1]), 0.0), frame_id)
+
+
+def _select(metric: Dict[int, np.ndarray], resolution: float, max_cells: int) -> Tuple[List[int], Dict[int, str]]:
+    with np.errstate(all='ignore'):
+        return select_parts({k: b / resolution for k, b in metric.items()}, max_cells)
+
+
+def _cells(box: np.ndarray) -> float:
+    """Cells of the canvas holding a box (x0, y0, x1, y1 in cells), as compose rounds it."""
+    with np.errstate(all='ignore'):   # huge boxes overflow to inf, which compares as too large
+        return float(np.prod(np.ceil(box[2:]) - np.floor(box[:2]) + 1.0))
+
+
+def select_parts(boxes: Dict[int, np.ndarray], max_cells: int = MAX_CELLS) -> Tuple[List[int], Dict[int, str]]:
+    """Which placed grids (index -> bounding box in merged cells) can be merged into one canvas of at most
+    `max_cells` cells; returns (kept indices, left-out index -> reason).
+
+    A box that is not finite is left out. If all the others together fit, all are kept (the usual case).
+    Otherwise the largest group that fits is kept: each grid in turn anchors a group that takes the other grids
+    nearest first while the canvas still fits; between groups of the same size the smaller canvas wins. So a
+    minority of grids placed absurdly far away (bad origin or pose) cannot push the others out.
+    """
+    reasons = {k: 'its placement in the merged map is not finite (or beyond 2^40 cells, where a double loses the '
+                  'cell)' for k, b in boxes.items() if not np.all(np.abs(b) <= MAX_COORDINATE)}
+    finite = {k: b for k, b in boxes.items() if k not in reasons}
+    if not finite:
+        return [], reasons
+    union = lambda bs: np.concatenate([np.min([b[:2] for b in bs], axis=0),   # noqa: E731
+                                       np.max([b[2:] for b in bs], axis=0)])
+    if _cells(union(list(finite.values()))) <= max_cells:
+        return sorted(finite), reasons
+    best: List[int] = []
+    best_cells = math.inf
+    for anchor in sorted(finite):
+        if _cells(finite[anchor]) > max_cells:
+            continue
+        centre = (finite[anchor][:2] + finite[anchor][2:]) / 2.0
+        order = sorted((k for k in finite if k != anchor),
+                       key=lambda k: float(np.abs((finite[k][:2] + finite[k][2:]) / 2.0 - centre).max()))
+        group, box = [anchor], finite[anchor]
+        for k in order:
+            grown = union([box, finite[k]])
+            if _cells(grown) <= max_cells:
+                group.append(k)
+                box = grown
+        if len(group) > len(best) or (len(group) == len(best) and _cells(box) < best_cells):
+            best, best_cells = group, _cells(box)
+    for k in finite:
+        if k not in best:
+            w, h = finite[k][2:] - finite[k][:2]
+            reasons[k] = (f'its map ({w:.3g} x {h:.3g} merged cells) is too large or placed too far from the others: '
+                          f'the merged grid would exceed {max_cells} cells')
+    return sorted(best), reasons

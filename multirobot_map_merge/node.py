@@ -37,7 +37,10 @@ Differences from the original, on purpose (see also robot_maps.py): init poses a
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming
 the robot instead of being merged; the reference robot does not jump between estimations; a robot whose init pose is
 missing is retried at every discovery pass (as the original) with a throttled warning; the tf child frame is the
-robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '/', as tf2 requires.
+robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '/', as tf2 requires. Cell values
+outside -1 and 0..100 are read as unknown, and a robot whose map or placement would make the merged grid unusable
+(non-finite, over ~max_merged_cells) is left out of that cycle, each with a throttled warning naming the robot
+(admission.py, compose.select_parts); the other robots are merged as usual.
 `~status` transforms are robot map frame -> world_frame as placed by the latest merge cycle.
 """
 from __future__ import annotations
@@ -61,6 +64,7 @@ from nav_msgs.msg import OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
 from . import transforms as tf
+from .admission import describe_invalid
 from .discovery import append, init_pose_param_names, robot_map_topics, robot_topics
 from .features import FeatureCache
 from .grid import Grid, GridError
@@ -332,10 +336,19 @@ class MapMergeNode:
     def _on_map(self, msg: OccupancyGrid, robot: Robot) -> None:
         rospy.logdebug('received full map update')
         try:
+            self._store_map(msg, robot)
+        except Exception as e:   # no exception leaves a callback: a bug or bad input drops this message only
+            self._warn(robot.name, 'map', f'map dropped: {type(e).__name__}: {e}')
+
+    def _store_map(self, msg: OccupancyGrid, robot: Robot) -> None:
+        try:
             grid = grid_from_msg(msg)
         except GridError as e:
             self._warn(robot.name, 'map', f'malformed map refused: {e}')
             return
+        if 'tilted_origin' in grid.extra:
+            self._warn(robot.name, 'tilt', 'map origin orientation (%g, %g, %g, %g) is not a pure yaw; roll/pitch '
+                                           'ignored' % grid.extra['tilted_origin'])
         first = robot.maps.snapshot() is None
         if not robot.maps.set_full(grid):
             rospy.logdebug('map_merge: robot [%s]: out-of-order older map dropped', robot.name)
@@ -346,10 +359,13 @@ class MapMergeNode:
         rospy.logdebug('received partial map update')
         try:
             update = update_from_msg(msg)
+            result = robot.maps.apply_update(update)
         except GridError as e:
             self._warn(robot.name, 'update', f'malformed map update refused: {e}')
             return
-        result = robot.maps.apply_update(update)
+        except Exception as e:   # no exception leaves a callback
+            self._warn(robot.name, 'update', f'map update dropped: {type(e).__name__}: {e}')
+            return
         if result.reason:
             self._warn(robot.name, 'update', ('' if result.applied else 'map update refused: ') + result.reason)
 
@@ -376,6 +392,7 @@ class MapMergeNode:
         if capacity != self._cache_capacity:
             pipeline.cache, self._cache_capacity = FeatureCache(capacity=capacity), capacity
         pipeline.feed(grids)
+        self._warn_admission(robots, pipeline)   # names the robots whose maps cannot be matched (admission.py)
         with self._estimate_lock:
             reference = self._reference
             previous = [self._transforms.get(n) for n in names]
@@ -429,7 +446,8 @@ class MapMergeNode:
         rospy.logdebug('Map merging started.')
         robots, grids = self._snapshot()
         pipeline = self._merge_pipeline
-        pipeline.feed(grids)
+        pipeline.feed(grids, matching=False)   # transforms come from the estimation or known poses
+        self._warn_admission(robots, pipeline)
         if self.params.known_init_poses:
             pipeline.set_known_poses([r.pose for r in robots], legacy=self.params.legacy_cell_poses)
         else:
@@ -447,7 +465,9 @@ class MapMergeNode:
             _, msg, world_from_merged = last
             msg = restamped(msg, now) if msg is not None else None
         else:
-            merged = pipeline.compose(self.params.world_frame)
+            merged = pipeline.compose(self.params.world_frame, self.params.max_merged_cells)
+            for k, reason in pipeline.left_out.items():
+                self._warn(robots[k].name, 'left_out', f'left out of this merge: {reason}')
             world_from_merged = np.eye(3)
             msg = None
             if merged is not None:
@@ -461,9 +481,17 @@ class MapMergeNode:
             rospy.logdebug('all maps merged, publishing')
             self._map_pub.publish(msg)
             if self._tf is not None:
-                self._broadcast_tf(robots, grids, pipeline.transforms, world_from_merged, now)
+                placed = [None if k in pipeline.left_out else t for k, t in enumerate(pipeline.transforms)]
+                self._broadcast_tf(robots, grids, placed, world_from_merged, now)
         # else: nothing to publish this cycle, as the original
         self._publish_status(world_from_merged, now)
+
+    def _warn_admission(self, robots: List[Robot], pipeline: MergingPipeline) -> None:
+        """Name the robots whose maps the pipeline's admission normalised or refused (admission.py)."""
+        for k, count in pipeline.invalid_cells.items():
+            self._warn(robots[k].name, 'cells', describe_invalid(count))
+        for k, reason in pipeline.refused.items():
+            self._warn(robots[k].name, 'refused', f'map left out of the estimation: {reason}')
 
     def _broadcast_tf(self, robots, grids, transforms, world_from_merged: np.ndarray, now) -> None:
         out = []

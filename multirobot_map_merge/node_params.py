@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from .grid import MAX_CELLS
 from .settings import EstimationSettings
 
 ORIGIN_MODES = ('center', 'world')
@@ -48,6 +49,8 @@ class MapMergeParams:
     legacy_cell_poses: bool = _p(False, 'extra: read init poses as the C++ 2.x node does (cells, inverted, corner '
                                         'pivot)')
     feature: str = _p('akaze', 'extra: keypoint detector of the estimator (akaze as the original, orb, sift)')
+    max_merged_cells: int = _p(1 << 24, 'extra: largest merged grid (cells); a robot whose map or placement would '
+                                        'make it larger is left out of that cycle with a warning (1..2^28)')
 
     @classmethod
     def fields_doc(cls) -> List[Tuple[str, str, Any, str]]:
@@ -69,6 +72,9 @@ class MapMergeParams:
                 problem = f"must be one of {', '.join(ORIGIN_MODES)}"
             if problem is None and f.name.endswith('_rate') and not (math.isfinite(value) and value > 0.0):
                 problem = 'must be a positive finite rate'   # no zero-period timers
+            if problem is None and f.name == 'max_merged_cells' and \
+                    (isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_CELLS):
+                problem = f'must be an integer in 1..{MAX_CELLS}'
             if problem is None and f.name == 'feature':
                 try:
                     EstimationSettings(feature=value).validate()

@@ -12,17 +12,18 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
 from . import transforms as tf
+from .admission import admit
 from .compose import compose
 from .estimation import Estimate, estimate
 from .growth import Progress
 from .memory import EstimationMemory
 from .features import FeatureCache
-from .grid import Grid
+from .grid import MAX_CELLS, Grid
 from .known_poses import InitPose, transforms_from_poses
 from .settings import EstimationSettings
 
@@ -35,15 +36,27 @@ class MergingPipeline:
         self.settings.validate()
         self.cache = FeatureCache()
         self.memory = EstimationMemory()   # for a live fleet: see memory.py
-        self.grids: List[Optional[Grid]] = []
+        self.grids: List[Optional[Grid]] = []        # as estimate sees them (None: absent, empty or unmatchable)
+        self.composable: List[Optional[Grid]] = []   # as compose sees them (None: absent or empty)
         self.transforms: List[Optional[np.ndarray]] = []
         self.reference: Optional[int] = None
         self.last_estimate: Optional[Estimate] = None
         self.compose_seconds = 0.0
+        self.invalid_cells: Dict[int, int] = {}   # grid index -> cells read as unknown by the last feed
+        self.refused: Dict[int, str] = {}         # grid index -> why the last feed left it out
+        self.left_out: Dict[int, str] = {}        # grid index -> why the last compose left it out
 
-    def feed(self, grids: Sequence[Optional[Grid]]) -> None:
-        """Replace the grids. Transforms are kept only if the number of grids is unchanged."""
-        grids = [g if g is not None and not g.is_empty() else None for g in grids]
+    def feed(self, grids: Sequence[Optional[Grid]], matching: bool = True) -> None:
+        """Replace the grids, each admitted (validated, cells normalised) by admission.admit; `invalid_cells`
+        counts the cells read as unknown. With `matching` (the grids may be estimated; the default) a grid the
+        estimation cannot match is None in `grids` (what estimate sees), with the reason in `refused`; it is still
+        composed at a known pose. Transforms are kept only if the number of grids is unchanged."""
+        work = self.settings.min_work_resolution if matching else None
+        admitted = [admit(g, work) for g in grids]
+        self.invalid_cells = {k: a.invalid_cells for k, a in enumerate(admitted) if a.invalid_cells}
+        self.refused = {k: a.refused for k, a in enumerate(admitted) if a.refused}
+        self.composable = [a.grid for a in admitted]
+        grids = [None if a.refused else a.grid for a in admitted]
         if len(grids) != len(self.grids):
             self.transforms = [None] * len(grids)
             self.reference = None
@@ -68,7 +81,7 @@ class MergingPipeline:
     def set_known_poses(self, poses: Sequence[Optional[InitPose]], legacy: bool = False) -> None:
         if len(poses) != len(self.grids):
             raise ValueError(f'{len(poses)} poses for {len(self.grids)} grids')
-        self.transforms = transforms_from_poses(self.grids, poses, legacy)
+        self.transforms = transforms_from_poses(self.composable, poses, legacy)
         self.reference = None
 
     def set_transforms(self, transforms: Sequence[Optional[np.ndarray]]) -> None:
@@ -76,12 +89,13 @@ class MergingPipeline:
             raise ValueError(f'{len(transforms)} transforms for {len(self.grids)} grids')
         self.transforms = [None if t is None else np.asarray(t, float) for t in transforms]
 
-    def compose(self, frame_id: str = '') -> Optional[Grid]:
+    def compose(self, frame_id: str = '', max_cells: int = MAX_CELLS) -> Optional[Grid]:
         t0 = time.perf_counter()
         resolution = None
         if self.reference is not None and self.grids[self.reference] is not None:
             resolution = self.grids[self.reference].resolution
-        merged = compose(self.grids, self.transforms, resolution, frame_id)
+        self.left_out = {}
+        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out, max_cells)
         self.compose_seconds = time.perf_counter() - t0
         return merged
 
@@ -89,9 +103,10 @@ class MergingPipeline:
         """Grid k's cells (corner coordinates) -> cells of the reference grid (or of the first placed grid)."""
         ref = self.reference
         if ref is None:
-            ref = next((i for i, t in enumerate(self.transforms) if t is not None and self.grids[i] is not None), None)
-        if ref is None or self.transforms[k] is None or self.grids[k] is None:
+            ref = next((i for i, t in enumerate(self.transforms)
+                        if t is not None and self.composable[i] is not None), None)
+        if ref is None or self.transforms[k] is None or self.composable[k] is None:
             return None
-        g_ref = self.grids[ref]
+        g_ref = self.composable[ref]
         return (tf.inverse(g_ref.cell_to_map()) @ tf.inverse(self.transforms[ref]) @ self.transforms[k]
-                @ self.grids[k].cell_to_map())
+                @ self.composable[k].cell_to_map())

@@ -10,8 +10,9 @@ Differences from the original, on purpose:
     map is dropped only when it is older than the last *full* map (out-of-order delivery) and has the same size; a
     full map of a new size always replaces the stored one.
   * §13.4: clipped updates are read with the update's own row stride (cell (cx, cy) gets data[cy - y, cx - x]).
-  * Updates are checked: negative position, data shape != height x width, or a rectangle that does not intersect the
-    grid are rejected with a reason, and the stored map is left unchanged.
+  * Updates are checked: negative position, data shape != height x width, an empty rectangle, or a rectangle that
+    does not intersect the grid are rejected with a reason, and the stored map is left unchanged. Cell values are
+    stored as sent: admission.admit normalises them where grids enter the merge.
 """
 from __future__ import annotations
 
@@ -56,13 +57,16 @@ class RobotMap:
             return True
 
     def apply_update(self, update: GridUpdate) -> UpdateResult:
-        """Patch the stored map with a partial update (clipped at the grid edge)."""
+        """Patch the stored map with a partial update (clipped at the grid edge). Never raises for any rectangle
+        (empty, negative, huge) or data length: a bad one is rejected with the reason."""
         x, y, w, h = int(update.x), int(update.y), int(update.width), int(update.height)
         data = np.asarray(update.data)
         if x < 0 or y < 0:
             return UpdateResult(False, f'negative coordinates x {x}, y {y}')
         if w < 0 or h < 0 or data.size != w * h:
             return UpdateResult(False, f'data has {data.size} cells, expected {w} x {h}')
+        if w == 0 or h == 0:
+            return UpdateResult(False, f'empty rectangle {w} x {h} at x {x}, y {y}: nothing to apply')
         data = data.reshape(h, w)
         with self._lock:
             old = self._grid
@@ -72,9 +76,9 @@ class RobotMap:
                 # as the original (§4.2 step 7): an update older than the stored map is stale
                 return UpdateResult(False, f'stamp {update.stamp:.3f} older than the stored map ({old.stamp:.3f})')
             gh, gw = old.data.shape
-            if w and h and (x >= gw or y >= gh):
+            if x >= gw or y >= gh:
                 return UpdateResult(False, f'rectangle at x {x}, y {y} lies outside the {gw} x {gh} map')
-            cw, ch = min(w, gw - x), min(h, gh - y)
+            cw, ch = min(w, gw - x), min(h, gh - y)   # both >= 1 here
             new_data = old.data.copy()
             new_data[y:y + ch, x:x + cw] = data[:ch, :cw]
             self._grid = Grid(new_data, old.resolution, old.origin, old.frame_id, update.stamp, dict(old.extra))

@@ -2,8 +2,9 @@
 
 Origin orientation: the yaw is taken from the quaternion after normalisation. An all-zero quaternion (what a
 default-constructed message holds, and what several map publishers send) is read as identity, as the original
-map_merge does (it ignores orientation altogether). A non-finite quaternion is a GridError. Roll/pitch are ignored
-with a warning: an occupancy grid is planar.
+map_merge does (it ignores orientation altogether). A non-finite quaternion is a GridError. Roll/pitch are ignored:
+an occupancy grid is planar; grid_from_msg records the tilted quaternion in ``grid.extra['tilted_origin']`` so that
+the caller can warn naming the robot (throttled), as the map_merge node does.
 
 Speed (measured, 2000 x 2000 grid): genpy packs int8[] with struct.pack(*data), so it needs a sequence of Python
 ints; bytes are refused for int8[] ("Only uint8[] can be a string"). ``ndarray.tolist()`` (~30 ms) + serialize
@@ -12,7 +13,6 @@ ints; bytes are refused for int8[] ("Only uint8[] can be a string"). ``ndarray.t
 """
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence, Union
@@ -23,8 +23,6 @@ from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 
 from .grid import Grid, GridError, validate_geometry
-
-_log = logging.getLogger('rosout.ros_conversions')
 
 StampLike = Union[None, float, int, genpy.Time]
 
@@ -58,9 +56,13 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     if norm2 < 1e-12:
         return 0.0
     # atan2 of two degree-2 forms: scale-invariant, so no explicit normalisation needed
-    if abs(x * x + y * y) / norm2 > 1e-6:
-        _log.warning("map origin orientation (%g, %g, %g, %g) is not a pure yaw; roll/pitch ignored", x, y, z, w)
     return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+
+
+def is_pure_yaw(x: float, y: float, z: float, w: float) -> bool:
+    """True unless the quaternion has a roll or pitch part (an all-zero or non-finite one counts as pure yaw)."""
+    norm2 = x * x + y * y + z * z + w * w
+    return not (math.isfinite(norm2) and norm2 >= 1e-12 and (x * x + y * y) / norm2 > 1e-6)
 
 
 def _to_sec(stamp) -> float:
@@ -87,8 +89,11 @@ def grid_from_msg(msg: OccupancyGrid) -> Grid:
     # geometry first, so an absurd width x height is refused before anything is allocated
     validate_geometry(w, h, float(info.resolution), origin)
     data = _data_array(msg.data, w * h, f"map of {w} x {h} cells")
-    return Grid(data.reshape(h, w), float(info.resolution), origin, frame_id=msg.header.frame_id,
+    grid = Grid(data.reshape(h, w), float(info.resolution), origin, frame_id=msg.header.frame_id,
                 stamp=_to_sec(msg.header.stamp))
+    if not is_pure_yaw(q.x, q.y, q.z, q.w):
+        grid.extra['tilted_origin'] = (float(q.x), float(q.y), float(q.z), float(q.w))
+    return grid
 
 
 def grid_to_msg(grid: Grid, stamp: StampLike = None, frame_id: Optional[str] = None) -> OccupancyGrid:
