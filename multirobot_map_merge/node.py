@@ -398,7 +398,7 @@ class MapMergeNode:
             previous = [self._transforms.get(n) for n in names]
         preferred = names.index(reference) if reference in names and grids[names.index(reference)] is not None \
             else None
-        # a robot placed before stays placed while its map still agrees with the others (tracking.py; doc/map_merge.md, Differences)
+        # a robot placed before stays placed while its map still agrees with the others (tracking.py)
         result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=names)
         for p in result.pairs:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',

@@ -283,8 +283,8 @@ def test_placement_contradicted_inside_both_views_is_not_merged(shared_dir):
 
 
 def test_evidence_report_shows_the_rival_of_an_ambiguous_pair(repo_root, shared_dir):
-    """pair_small_simple_rooms_1 (doc/merging.md, Accuracy): the maps fit, every wall agreeing, at the true place and, with
-    far more walls in common, at a room just like it across the corridor."""
+    """pair_small_simple_rooms_1 (doc/merging.md, Accuracy): the maps fit, every wall agreeing, at the true place
+    and, with far more walls in common, at a room just like it across the corridor."""
     script = repo_root / 'scripts' / 'evidence_report.py'
     out = subprocess.run([sys.executable, str(script), '--data', str(shared_dir / 'data' / 'dev'),
                           '--only', 'pair_small_simple_rooms_1'], capture_output=True, text=True, timeout=120)
