@@ -7,6 +7,7 @@ the canvas, so many small maps on a large canvas stay cheap.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import cv2
@@ -47,7 +48,7 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
-    of the first placed grid; unless another placed grid's resolution lets more grids in) and its origin is the
+    of the first placed grid; when that leaves grids out and more placed grids share another resolution, that one) and its origin is the
     corner of the smallest canvas holding every known cell. Returns None when no grid with a known cell is placed.
     A grid whose placement is not finite, or that would make the merged grid larger than `max_cells` (at most
     MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and the reason.
@@ -81,14 +82,13 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     keep, reasons = _select(metric, chosen, max_cells)
     if resolution is None and len(keep) < len(metric):
         # the default resolution (the original's rule) may itself come from an absurd map (1 um cells): then the
-        # resolution of another placed grid that keeps more grids is taken
-        tried = {chosen}
-        for k, g, _ in placed:
-            if k in metric and g.resolution not in tried:
-                tried.add(g.resolution)
-                keep_k, reasons_k = _select(metric, g.resolution, max_cells)
-                if len(keep_k) > len(keep):
-                    chosen, keep, reasons = g.resolution, keep_k, reasons_k
+        # resolution most placed grids share is taken. Not the one that keeps most grids: a coarse absurd one
+        # (10 m cells) keeps everything, and blurs every good map to nothing
+        shared = Counter(g.resolution for k, g, _ in placed if k in metric)
+        common, count = shared.most_common(1)[0]
+        if count > shared[chosen]:
+            chosen = common
+            keep, reasons = _select(metric, chosen, max_cells)
     resolution = chosen
     if left_out is not None:
         left_out.update(reasons)

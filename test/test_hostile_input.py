@@ -265,6 +265,19 @@ def test_an_absurd_resolution_does_not_set_the_merged_one():
     assert merged.resolution == 0.05 and (merged.data == 100).sum() >= 2 * 40 * 60 * 0.9
 
 
+def test_a_coarse_absurd_resolution_does_not_take_over_the_merge():
+    """Fuzz seed 490771560: with a far map left out at the reference's 5 cm, a 10 m map would keep every map in (all
+    fit in few cells) and blur the good maps to nothing: the resolution most maps share is kept."""
+    good = [Grid(np.full((40, 60), 100, np.int8), 0.05) for _ in range(2)]
+    coarse = Grid(np.zeros((30, 30), np.int8), 10.0)
+    far = Grid(np.zeros((10, 10), np.int8), 0.05)
+    left_out = {}
+    merged = compose(good + [coarse, far], [np.eye(3), tf.rigid(3.0, 0.0, 0.0), tf.rigid(5.0, 5.0, 0.0),
+                                            tf.rigid(1e5, 0.0, 0.0)], left_out=left_out, max_cells=10 ** 6)
+    assert merged.resolution == 0.05 and 0 not in left_out and 1 not in left_out and 3 in left_out
+    assert (merged.data == 100).sum() >= 2 * 40 * 60 * 0.9
+
+
 # ------------------------------------------------------------------ offline merge_maps: same rules, one line each
 def _write_map(folder, name, data, origin=(0.0, 0.0, 0.0), mode='trinary'):
     """A map_server map; in raw mode the pixels are the cell values (as uint8), so any int8 value can be written."""
