@@ -33,19 +33,16 @@ import threading
 import time
 from typing import List, Optional, Tuple
 
-import numpy as np
 import rospy
 import tf2_ros
 from actionlib_msgs.msg import GoalStatus
-from geometry_msgs.msg import PoseStamped, Quaternion
+from geometry_msgs.msg import Quaternion
 from map_msgs.msg import OccupancyGridUpdate
 from move_base_msgs.msg import MoveBaseGoal
 from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
-from multirobot_map_merge.grid import Grid, GridError
-from multirobot_map_merge.ros_conversions import grid_from_msg
 from multirobot_map_merge.throttle import Throttle
 
 from .costmap import Costmap
@@ -54,7 +51,8 @@ from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
 from .nav_client import NavClient
 from .params import ExploreParams, ParamError, describe
-from .team import TeamGoals, drop_explored_by_team, grid_known_at
+from .team import drop_explored_by_team
+from .team_link import TeamLink
 
 WARN_PERIOD = 5.0        # s (wall) between two identical warnings
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -114,10 +112,7 @@ class ExploreNode:
         self._marker_count = 0
         self.client: Optional[NavClient] = None
         self._marker_pub = rospy.Publisher('~frontiers', MarkerArray, queue_size=10) if params.visualize else None
-        self.team: Optional[TeamGoals] = None
-        self._team_pub = None
-        self._team_map: Optional[Grid] = None   # replaced whole by its callback, read by the planner
-        self._team_tf_reported = False
+        self.team: Optional[TeamLink] = None
         self._map_sub = rospy.Subscriber(params.costmap_topic, OccupancyGrid, self._on_map, queue_size=1000,
                                          buff_size=1 << 24)
         self._updates_sub = None
@@ -166,27 +161,6 @@ class ExploreNode:
     def _on_tick(self, _event) -> None:
         self._wake.set()
 
-    def _on_team_goal(self, msg: PoseStamped) -> None:
-        sender = msg._connection_header.get('callerid', '') if hasattr(msg, '_connection_header') else ''
-        q = msg.pose.orientation
-        if not sender:
-            return
-        if msg.header.frame_id.lstrip('/') != self.p.team_frame.lstrip('/'):
-            if self._throttle('team_frame'):
-                rospy.logwarn('explore: team goal of %s in frame [%s], expected [%s]; ignored', sender,
-                              msg.header.frame_id, self.p.team_frame)
-            return
-        withdrawn = q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0   # all-zero quaternion: no goal
-        point = None if withdrawn else (msg.pose.position.x, msg.pose.position.y)
-        self.team.update(sender, point, msg.header.stamp.to_sec(), rospy.get_time())
-
-    def _on_team_map(self, msg: OccupancyGrid) -> None:
-        try:
-            self._team_map = grid_from_msg(msg)
-        except GridError as e:
-            if self._throttle('team_map'):
-                rospy.logwarn('explore: team map refused: %s', e)
-
     # ------------------------------------------------------------------ start-up (blocking, as the original)
     def start(self) -> bool:
         """Wait for the map, tf and move_base, then start planning. False if ROS shut down meanwhile."""
@@ -207,13 +181,7 @@ class ExploreNode:
                 rospy.loginfo('explore: initial pose (%.2f, %.2f) in %s stored for return_to_init',
                               self._initial_pose[0], self._initial_pose[1], self.costmap.frame_id)
                 self.logic.set_initial_pose(self._initial_pose)
-        if self.p.team_topic:
-            self.team = TeamGoals(rospy.get_name())
-            self._team_pub = rospy.Publisher(self.p.team_topic, PoseStamped, queue_size=10)
-            rospy.Subscriber(self.p.team_topic, PoseStamped, self._on_team_goal, queue_size=50)
-        if self.p.team_map_topic:
-            rospy.Subscriber(self.p.team_map_topic, OccupancyGrid, self._on_team_map, queue_size=1,
-                             buff_size=1 << 25)
+        self.team = TeamLink(self.p, self.tf_buffer, self._throttle)   # its topics, if configured
         rospy.loginfo('Waiting to connect to move_base server')
         while not self.client.wait_for_server(1.0):
             if rospy.is_shutdown():
@@ -312,7 +280,7 @@ class ExploreNode:
         if pose is None:
             return
         cm = self.costmap
-        team_known = self._team_known_at(cm.frame_id)
+        team_known = self.team.known_at(cm.frame_id)
         with cm.lock:
             if cm.world_to_map(pose[0], pose[1]) is None:
                 if self._throttle('bounds'):
@@ -330,8 +298,9 @@ class ExploreNode:
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
             self._publish_markers(frontiers, frame, resolution)
-        if self.team is not None:
-            frontiers = apply_team_penalty(frontiers, self._team_goals(frame, now), self.p.team_radius)
+        if self.team.goals is not None:
+            team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
+            frontiers = apply_team_penalty(frontiers, team_goals, self.p.team_radius)
         result = self.logic.plan(frontiers, resolution, now)
         if result.action is PlanAction.STOP:
             if result.reason == 'all_blacklisted':
@@ -361,6 +330,9 @@ class ExploreNode:
         self.client.send_goal(goal, lambda s, r, t=target: self._on_goal_done(t, s, r))
         self._publish_team_goal(frame)
 
+    def _publish_team_goal(self, frame: str) -> None:
+        self.team.publish_goal(frame, self._goal, self._goal_chosen_at)
+
     def _stop(self, return_target: Optional[Pose2] = None, publish_note: str = 'Exploration stopped.') -> None:
         with self._state_lock:
             self._exploring = False
@@ -381,67 +353,6 @@ class ExploreNode:
         else:
             self.client.cancel_all_goals()
         rospy.loginfo(publish_note)
-
-    # ------------------------------------------------------------------ team coordination
-    def _lookup(self, target: str, source: str):
-        try:
-            return self.tf_buffer.lookup_transform(target, source, rospy.Time(0))
-        except tf2_ros.TransformException as e:
-            # normal until map_merge has placed this robot: say so once, then only at DEBUG
-            log = rospy.logdebug if self._team_tf_reported else rospy.loginfo
-            self._team_tf_reported = True
-            if self._throttle('team_tf'):
-                log('explore: no tf %s -> %s yet (%s); team coordination waits for it', source, target, e)
-            return None
-
-    def _team_known_at(self, frame: str):
-        """known_at() of the team map for points of ``frame``, or None (no team map yet, or not in tf yet)."""
-        grid = self._team_map
-        if grid is None:
-            return None
-        t = self._lookup(grid.frame_id or self.p.team_frame, frame)
-        if t is None:
-            return None
-        tr, q = t.transform.translation, t.transform.rotation
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        c, s = math.cos(yaw), math.sin(yaw)
-        return grid_known_at(grid, np.array([[c, -s, tr.x], [s, c, tr.y], [0.0, 0.0, 1.0]]))
-
-    def _team_goals(self, frame: str, now: float) -> List[Tuple[float, float]]:
-        """Teammates' current goals in ``frame`` (the map frame); [] while the team frame is not in tf."""
-        t = self._lookup(frame, self.p.team_frame)
-        if t is None:
-            return []
-        own = None
-        if self._goal is not None:
-            back = self._lookup(self.p.team_frame, frame)
-            own = _apply(back, self._goal) if back is not None else None
-        goals = self.team.active(now, own, self._goal_chosen_at, self.p.team_radius)
-        return [_apply(t, g.point) for g in goals]
-
-    def _publish_team_goal(self, frame: str) -> None:
-        if self._team_pub is None:
-            return
-        msg = PoseStamped()
-        msg.header.frame_id = self.p.team_frame
-        if self._goal is None:
-            msg.header.stamp = rospy.Time.now()   # all-zero orientation: withdrawn
-        else:
-            t = self._lookup(self.p.team_frame, frame)
-            if t is None:
-                return
-            msg.header.stamp = rospy.Time.from_sec(self._goal_chosen_at)
-            msg.pose.position.x, msg.pose.position.y = _apply(t, self._goal)
-            msg.pose.orientation = Quaternion(*IDENTITY)
-        self._team_pub.publish(msg)
-
-
-def _apply(t, p: Tuple[float, float]) -> Tuple[float, float]:
-    """Apply a TransformStamped's planar part (yaw about z) to point p."""
-    tr, q = t.transform.translation, t.transform.rotation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-    c, s = math.cos(yaw), math.sin(yaw)
-    return tr.x + c * p[0] - s * p[1], tr.y + s * p[0] + c * p[1]
 
 
 def main() -> None:
