@@ -4,20 +4,42 @@ Built on actionlib's plain ActionClient because SimpleActionClient logs "Got a t
 that we're not tracking" at ERROR whenever a status message for the replaced goal is in flight while a new goal is
 sent, which happens at every goal switch, and because its done callback can race with ``send_goal`` returning.
 Here each goal gets a token before it is sent; callbacks for any other token are ignored, as the original ignores
-replaced goals.
+replaced goals. ``pose_goal`` builds the node's goals (both kinds: frontier and return), ``status_name`` names an end
+state in logs.
 """
 from __future__ import annotations
 
 import itertools
 import threading
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Tuple, Union
 
 import actionlib
 import rospy
 from actionlib import CommState
+from actionlib_msgs.msg import GoalStatus
+from geometry_msgs.msg import Quaternion
 from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 
 DoneCallback = Callable[[int, Any], None]   # (terminal GoalStatus, result)
+IDENTITY = (0.0, 0.0, 0.0, 1.0)   # exploration goals have no orientation, as the original's
+_STATUS = {getattr(GoalStatus, n): n for n in ('PENDING', 'ACTIVE', 'PREEMPTED', 'SUCCEEDED', 'ABORTED', 'REJECTED',
+                                               'PREEMPTING', 'RECALLING', 'RECALLED', 'LOST')}
+
+
+def pose_goal(frame: str, x: float, y: float,
+              q: Tuple[float, float, float, float] = IDENTITY) -> MoveBaseGoal:
+    """A move_base goal at (x, y) in ``frame`` with orientation ``q`` (x, y, z, w), stamped now."""
+    goal = MoveBaseGoal()
+    goal.target_pose.header.frame_id = frame
+    goal.target_pose.header.stamp = rospy.Time.now()
+    goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = x, y
+    goal.target_pose.pose.orientation = Quaternion(*q)
+    return goal
+
+
+def status_name(state: int) -> Union[str, int]:
+    """GoalStatus name of ``state`` for logs (the number itself if it is none of them)."""
+    return _STATUS.get(state, state)
 
 
 class NavClient:

@@ -35,10 +35,7 @@ from typing import List, Optional, Tuple
 
 import rospy
 import tf2_ros
-from actionlib_msgs.msg import GoalStatus
-from geometry_msgs.msg import Quaternion
 from map_msgs.msg import OccupancyGridUpdate
-from move_base_msgs.msg import MoveBaseGoal
 from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
@@ -49,15 +46,12 @@ from .costmap import Costmap
 from .frontier_search import Frontier, FrontierSearch
 from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
-from .nav_client import NavClient
+from .nav_client import NavClient, pose_goal, status_name
 from .params import ExploreParams, ParamError, describe
 from .team import drop_explored_by_team
 from .team_link import TeamLink
 
 WARN_PERIOD = 5.0        # s (wall) between two identical warnings
-IDENTITY = (0.0, 0.0, 0.0, 1.0)
-_STATUS = {getattr(GoalStatus, n): n for n in ('PENDING', 'ACTIVE', 'PREEMPTED', 'SUCCEEDED', 'ABORTED', 'REJECTED',
-                                               'PREEMPTING', 'RECALLING', 'RECALLED', 'LOST')}
 Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
 
 
@@ -151,7 +145,7 @@ class ExploreNode:
         self._wake.set()
 
     def _on_return_done(self, state: int, _result) -> None:
-        rospy.loginfo('explore: return to the initial pose finished with status %s', _STATUS.get(state, state))
+        rospy.loginfo('explore: return to the initial pose finished with status %s', status_name(state))
 
     def _on_resume(self, msg: Bool) -> None:
         with self._state_lock:
@@ -320,11 +314,7 @@ class ExploreNode:
         self._marker_pub.publish(array)
 
     def _send_goal(self, target: Tuple[float, float], frame: str, now: float) -> None:
-        goal = MoveBaseGoal()
-        goal.target_pose.header.frame_id = frame
-        goal.target_pose.header.stamp = rospy.Time.now()
-        goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = target
-        goal.target_pose.pose.orientation = Quaternion(*IDENTITY)
+        goal = pose_goal(frame, *target)
         rospy.logdebug('explore: sending goal (%.2f, %.2f) in %s', target[0], target[1], frame)
         self._goal, self._goal_chosen_at = target, now
         self.client.send_goal(goal, lambda s, r, t=target: self._on_goal_done(t, s, r))
@@ -343,11 +333,7 @@ class ExploreNode:
         if return_target is not None:
             # The new goal replaces the running one on the server; cancelling first could race with it.
             x, y, q = return_target
-            goal = MoveBaseGoal()
-            goal.target_pose.header.frame_id = self.costmap.frame_id
-            goal.target_pose.header.stamp = rospy.Time.now()
-            goal.target_pose.pose.position.x, goal.target_pose.pose.position.y = x, y
-            goal.target_pose.pose.orientation = Quaternion(*q)
+            goal = pose_goal(self.costmap.frame_id, x, y, q)
             rospy.loginfo('explore: returning to the initial pose (%.2f, %.2f)', x, y)
             self.client.send_goal(goal, self._on_return_done)
         else:
