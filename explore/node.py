@@ -16,6 +16,10 @@ Threads: subscriber callbacks only store (the map translation happens under the 
 one planner thread runs every planning cycle (woken by a rospy.Timer at planner_frequency in ROS time, by a
 finished goal, or by ~resume), so goals are never sent from inside an actionlib callback.
 
+Layout: this module is the ROS adapter (parameters, map input, tf, start-up, main); planning_loop.py runs the
+planner thread and carries out its decisions, team_link.py holds the team topics, nav_client.py talks to
+move_base; the decisions themselves are in the ROS-free modules (costmap, frontier_search, goal_logic, team).
+
 Differences from the original, on purpose: a failed or stale robot-pose lookup skips that cycle with a throttled
 warning (the original searches from (0,0) and may end exploration); a robot outside the map skips the cycle with a
 throttled error (the original stops for good); occupancies up to `free_threshold` count as free, so probabilistic
@@ -27,11 +31,10 @@ is true.
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 import time
-from typing import List, Optional, Tuple
+from typing import Optional, Tuple
 
 import rospy
 import tf2_ros
@@ -43,16 +46,12 @@ from visualization_msgs.msg import MarkerArray
 from multirobot_map_merge.throttle import Throttle
 
 from .costmap import Costmap
-from .frontier_search import Frontier, FrontierSearch
-from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
-from .markers import frontier_markers
-from .nav_client import NavClient, pose_goal, status_name
+from .nav_client import NavClient
 from .params import ExploreParams, ParamError, describe
-from .team import drop_explored_by_team
+from .planning_loop import PlanningLoop, Pose2
 from .team_link import TeamLink
 
 WARN_PERIOD = 5.0        # s (wall) between two identical warnings
-Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
 
 
 def _params_doc() -> str:
@@ -81,32 +80,19 @@ def _yaw_quaternion(q) -> Tuple[float, float, float, float]:
 
 
 class ExploreNode:
+    """The ROS adapter: map input, tf, start-up; planning runs in ``self.loop`` (planning_loop.py)."""
+
     def __init__(self, params: ExploreParams) -> None:
         self.p = params
         self._throttle = Throttle(WARN_PERIOD)
         self.costmap = Costmap(params.probability_map, params.free_threshold, params.occupied_threshold,
                                by_threshold=True)
-        self.search = FrontierSearch(self.costmap, params.potential_scale, params.gain_scale,
-                                     params.min_frontier_size)
-        self.logic = GoalLogic(params.progress_timeout, params.return_to_init)
         self.base_frame = resolve_tf_prefix(params.robot_base_frame)
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
         self._first_map = threading.Event()
-        self._wake = threading.Event()
-        self._shutdown = threading.Event()
-        # Planner state, owned by the planner thread; _state_lock guards what callbacks hand over to it.
-        self._state_lock = threading.Lock()
-        self._resume_request: Optional[bool] = None   # set by ~resume, consumed by the planner
-        self._exploring = False
-        self._timer: Optional[rospy.Timer] = None
-        self._goal: Optional[Tuple[float, float]] = None   # current exploration goal (global frame)
-        self._goal_chosen_at = math.inf                    # ROS time it was chosen
-        self._initial_pose: Optional[Pose2] = None
-        self._marker_count = 0
-        self.client: Optional[NavClient] = None
-        self._marker_pub = rospy.Publisher('~frontiers', MarkerArray, queue_size=10) if params.visualize else None
-        self.team: Optional[TeamLink] = None
+        marker_pub = rospy.Publisher('~frontiers', MarkerArray, queue_size=10) if params.visualize else None
+        self.loop = PlanningLoop(params, self.costmap, self.robot_pose, self._throttle, marker_pub)
         self._map_sub = rospy.Subscriber(params.costmap_topic, OccupancyGrid, self._on_map, queue_size=1000,
                                          buff_size=1 << 24)
         self._updates_sub = None
@@ -138,22 +124,8 @@ class ExploreNode:
         if count and self._throttle('invalid_cells'):
             rospy.logwarn('explore: %d cell(s) on %s with values outside -1 and 0..100 read as unknown', count, topic)
 
-    def _on_goal_done(self, target: Tuple[float, float], state: int, _result) -> None:
-        # actionlib's thread: record the result and wake the planner, never send a goal from here
-        self.logic.on_goal_done(state, target)
-        rospy.logdebug('explore: goal (%.2f, %.2f) done with status %d', target[0], target[1], state)
-        self._wake.set()
-
-    def _on_return_done(self, state: int, _result) -> None:
-        rospy.loginfo('explore: return to the initial pose finished with status %s', status_name(state))
-
     def _on_resume(self, msg: Bool) -> None:
-        with self._state_lock:
-            self._resume_request = bool(msg.data)
-        self._wake.set()
-
-    def _on_tick(self, _event) -> None:
-        self._wake.set()
+        self.loop.request_resume(bool(msg.data))
 
     # ------------------------------------------------------------------ start-up (blocking, as the original)
     def start(self) -> bool:
@@ -166,26 +138,23 @@ class ExploreNode:
                                              queue_size=1000, buff_size=1 << 24)
         if not self._wait_for_tf():
             return False
-        self.client = NavClient('move_base')
+        client = NavClient('move_base')
         if self.p.return_to_init:
-            self._initial_pose = self.robot_pose()
-            if self._initial_pose is None:
+            initial_pose = self.robot_pose()
+            if initial_pose is None:
                 rospy.logwarn('explore: could not look up the initial pose; return_to_init is disabled')
             else:
                 rospy.loginfo('explore: initial pose (%.2f, %.2f) in %s stored for return_to_init',
-                              self._initial_pose[0], self._initial_pose[1], self.costmap.frame_id)
-                self.logic.set_initial_pose(self._initial_pose)
-        self.team = TeamLink(self.p, self.tf_buffer, self._throttle)   # its topics, if configured
+                              initial_pose[0], initial_pose[1], self.costmap.frame_id)
+                self.loop.logic.set_initial_pose(initial_pose)
+        team = TeamLink(self.p, self.tf_buffer, self._throttle)   # its topics, if configured
         rospy.loginfo('Waiting to connect to move_base server')
-        while not self.client.wait_for_server(1.0):
+        while not client.wait_for_server(1.0):
             if rospy.is_shutdown():
                 return False
         rospy.loginfo('Connected to move_base server')
         self._resume_sub = rospy.Subscriber('~resume', Bool, self._on_resume, queue_size=10)
-        with self._state_lock:
-            self._exploring = True
-            self._start_timer()
-        threading.Thread(target=self._planner_loop, name='planner', daemon=True).start()
+        self.loop.start(client, team)
         return True
 
     def _wait_for_tf(self) -> bool:
@@ -205,46 +174,7 @@ class ExploreNode:
         return False
 
     def stop_node(self) -> None:
-        self._shutdown.set()
-        self._wake.set()
-
-    # ------------------------------------------------------------------ planner thread
-    def _start_timer(self) -> None:
-        if self._timer is None:
-            self._timer = rospy.Timer(rospy.Duration(1.0 / self.p.planner_frequency), self._on_tick)
-
-    def _stop_timer(self) -> None:
-        if self._timer is not None:
-            self._timer.shutdown()
-            self._timer = None
-
-    def _planner_loop(self) -> None:
-        while not self._shutdown.is_set() and not rospy.is_shutdown():
-            if not self._wake.wait(0.2):   # short slices so shutdown is seen promptly
-                continue
-            self._wake.clear()
-            try:
-                with self._state_lock:
-                    request, self._resume_request = self._resume_request, None
-                if request is not None:
-                    self._apply_resume(request)
-                if self._exploring:
-                    self.make_plan()
-            except Exception as e:   # a bug or bad input in one cycle must not end exploration
-                if self._throttle('cycle'):
-                    rospy.logerr('explore: planning cycle failed: %s: %s', type(e).__name__, e)
-
-    def _apply_resume(self, resume: bool) -> None:
-        if resume:
-            rospy.loginfo('explore: exploration resumed')
-            self.logic.resume()
-            with self._state_lock:
-                self._exploring = True
-                self._stop_timer()     # restart the period from now, as the ROS 2 port
-                self._start_timer()
-        elif self._exploring:
-            rospy.loginfo('explore: exploration paused')
-            self._stop(publish_note='Exploration paused.')
+        self.loop.shutdown()
 
     def robot_pose(self) -> Optional[Pose2]:
         """Robot pose in the map frame, or None (throttled warning) if tf fails or the transform is stale."""
@@ -267,78 +197,6 @@ class ExploreNode:
             return None
         tr = t.transform
         return tr.translation.x, tr.translation.y, _yaw_quaternion(tr.rotation)
-
-    def make_plan(self) -> None:
-        """One planning cycle (explore.md §6), with the corrections listed in the module doc."""
-        pose = self.robot_pose()
-        if pose is None:
-            return
-        cm = self.costmap
-        team_known = self.team.known_at(cm.frame_id)
-        with cm.lock:
-            if cm.world_to_map(pose[0], pose[1]) is None:
-                if self._throttle('bounds'):
-                    rospy.logerr('Robot out of costmap bounds, cannot search for frontiers; skipping this '
-                                 'planning cycle')
-                return
-            frontiers = self.search.search_from(pose[0], pose[1])
-            resolution, frame = cm.resolution, cm.frame_id
-            if team_known is not None and frontiers:
-                found = len(frontiers)
-                frontiers = drop_explored_by_team(frontiers, cm.data, resolution, (cm.origin_x, cm.origin_y),
-                                                  team_known)
-                rospy.logdebug('explore: %d of %d frontiers already mapped by the team', found - len(frontiers),
-                               found)
-        now = rospy.get_time()
-        if self._marker_pub is not None and frontiers:
-            self._publish_markers(frontiers, frame, resolution)
-        if self.team.goals is not None:
-            team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
-            frontiers = apply_team_penalty(frontiers, team_goals, self.p.team_radius)
-        result = self.logic.plan(frontiers, resolution, now)
-        if result.action is PlanAction.STOP:
-            if result.reason == 'all_blacklisted':
-                rospy.loginfo('explore: all frontiers traversed/tried out, stopping.')
-            else:
-                rospy.loginfo('explore: no frontiers found, stopping.')
-            self._stop(return_target=result.return_target)
-        elif result.action is PlanAction.SEND_GOAL:
-            self._send_goal(result.target, frame, now)
-        else:
-            self._publish_team_goal(frame)   # refresh for teammates
-
-    def _publish_markers(self, frontiers: List[Frontier], frame: str, resolution: float) -> None:
-        array = frontier_markers(frontiers, frame, rospy.Time.now(),
-                                 lambda f: self.logic.is_blacklisted(f.centroid, resolution), self._marker_count)
-        self._marker_count = 2 * len(frontiers)
-        self._marker_pub.publish(array)
-
-    def _send_goal(self, target: Tuple[float, float], frame: str, now: float) -> None:
-        goal = pose_goal(frame, *target)
-        rospy.logdebug('explore: sending goal (%.2f, %.2f) in %s', target[0], target[1], frame)
-        self._goal, self._goal_chosen_at = target, now
-        self.client.send_goal(goal, lambda s, r, t=target: self._on_goal_done(t, s, r))
-        self._publish_team_goal(frame)
-
-    def _publish_team_goal(self, frame: str) -> None:
-        self.team.publish_goal(frame, self._goal, self._goal_chosen_at)
-
-    def _stop(self, return_target: Optional[Pose2] = None, publish_note: str = 'Exploration stopped.') -> None:
-        with self._state_lock:
-            self._exploring = False
-            self._stop_timer()
-        self._goal, self._goal_chosen_at = None, math.inf
-        self.logic.forget_goal()   # the goal is cancelled: after ~resume the same frontier must be sent again
-        self._publish_team_goal(self.costmap.frame_id)   # withdraws our goal
-        if return_target is not None:
-            # The new goal replaces the running one on the server; cancelling first could race with it.
-            x, y, q = return_target
-            goal = pose_goal(self.costmap.frame_id, x, y, q)
-            rospy.loginfo('explore: returning to the initial pose (%.2f, %.2f)', x, y)
-            self.client.send_goal(goal, self._on_return_done)
-        else:
-            self.client.cancel_all_goals()
-        rospy.loginfo(publish_note)
 
 
 def main() -> None:
