@@ -76,7 +76,7 @@ def run_row(name: str, data_dir: Path, repeat: int) -> dict:
     """Measure one row in this process; returns medians and the peak RSS."""
     from multirobot_map_merge import transforms as tf
     from multirobot_map_merge.pipeline import MergingPipeline
-    from multirobot_map_merge.settings import EstimationSettings
+    from multirobot_map_merge.estimation.settings import EstimationSettings
     grids, truth = load_scenario(data_dir / ROWS[name][0])
     if name == 'canvas8':
         grids = [to_canvas(g) for g in grids]
@@ -108,7 +108,7 @@ def run_curve(data_dir: Path, repeat: int) -> List[dict]:
     """Estimation of the first n maps of the 30-map scenario, for growing n: the cost per added map."""
     import time
     from multirobot_map_merge.pipeline import MergingPipeline
-    from multirobot_map_merge.settings import EstimationSettings
+    from multirobot_map_merge.estimation.settings import EstimationSettings
     grids, truth = load_scenario(data_dir / ROWS['large30'][0])
     # each next map is the one that shares most with those before it (as robots of one fleet): every first n maps
     # can merge, so the curve shows the cost of adding a map, not of leaving one out

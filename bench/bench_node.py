@@ -62,7 +62,7 @@ def run_publisher(args: argparse.Namespace) -> None:
     from nav_msgs.msg import OccupancyGrid
 
     from multirobot_map_merge.mapio import load_map
-    from multirobot_map_merge.ros_conversions import grid_to_msg
+    from multirobot_map_merge.ros.conversions import grid_to_msg
 
     rospy.init_node('bench_robots')
     truth = json.loads((Path(args.data) / 'truth.json').read_text())

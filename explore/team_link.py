@@ -17,7 +17,7 @@ from geometry_msgs.msg import PoseStamped, Quaternion
 from nav_msgs.msg import OccupancyGrid
 
 from multirobot_map_merge.grid import Grid, GridError
-from multirobot_map_merge.ros_conversions import grid_from_msg
+from multirobot_map_merge.ros.conversions import grid_from_msg
 from multirobot_map_merge.throttle import Throttle
 
 from .params import ExploreParams

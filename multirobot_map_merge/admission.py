@@ -18,8 +18,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .features import crop_to_known
-from .grid import OCCUPIED, UNKNOWN, Grid
+from .grid import OCCUPIED, UNKNOWN, Grid, crop_to_known
 
 # A map larger than this at the working resolution (8192 x 8192 pixels, 410 m square at 5 cm; 16 x the largest dev
 # map) cannot be matched in a useful time: estimating it would stall the placement of every robot.

@@ -34,14 +34,14 @@ import yaml
 
 from . import transforms as tf
 from .admission import describe_invalid
-from .features import FEATURE_TYPES
+from .estimation.features import FEATURE_TYPES
 from .known_poses import InitPose
 from .grid import Grid
 from .mapio import MapFileError, load_map, save_map, save_png
 from .overlay import overlay_path, save_overlay, used_pairs
 from .pipeline import MergingPipeline
 from .progress import TerminalProgress, attach
-from .settings import EstimationSettings
+from .estimation.settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.cli')
 
@@ -125,7 +125,7 @@ def load_inputs(args: argparse.Namespace) -> Tuple[List[str], List[Optional[Grid
             raise UsageError(str(e))
     if args.maps:
         raise UsageError('give MAP.yaml files or --bag, not both')
-    from .bag_input import BagError, read_bag_maps   # lazily: needs rosbag
+    from .ros.bag_input import BagError, read_bag_maps   # lazily: needs rosbag
     try:
         robots = read_bag_maps(args.bag, args.at, args.topic_suffix or 'map')
     except BagError as e:

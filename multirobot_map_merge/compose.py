@@ -14,8 +14,7 @@ import cv2
 import numpy as np
 
 from . import transforms as tf
-from .features import crop_to_known
-from .grid import MAX_CELLS, UNKNOWN, Grid, GridError
+from .grid import MAX_CELLS, UNKNOWN, Grid, GridError, crop_to_known
 
 # merged-cell coordinates beyond this cannot be placed to a cell: a double holds 53 bits, and compose subtracts them
 MAX_COORDINATE = float(1 << 40)

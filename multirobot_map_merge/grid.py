@@ -79,3 +79,15 @@ def validate_geometry(width: int, height: int, resolution: float, origin) -> Non
         raise GridError(f"resolution {resolution} is not a positive finite number")
     if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
         raise GridError(f"origin {tuple(origin)} is not finite")
+
+
+def crop_to_known(data: np.ndarray, margin: int = 0):
+    """(row0, row1, col0, col1) of the known part plus a margin, or None if nothing is known."""
+    known = data >= 0
+    rows = np.flatnonzero(known.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(known[rows[0]:rows[-1] + 1].any(axis=0))
+    h, w = data.shape
+    return (max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h),
+            max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w))

@@ -15,8 +15,7 @@ import numpy as np
 
 from . import transforms as tf
 from .compose import warp_into
-from .features import crop_to_known
-from .grid import UNKNOWN, Grid
+from .grid import UNKNOWN, Grid, crop_to_known
 from .mapio import save_image
 
 # BGR; distinct on white and on each other (Tableau 10)

@@ -19,13 +19,13 @@ import numpy as np
 from . import transforms as tf
 from .admission import admit
 from .compose import compose
-from .estimation import Estimate, estimate
-from .growth import Progress
-from .memory import EstimationMemory
-from .features import FeatureCache
+from .estimation.estimator import Estimate, estimate
+from .estimation.growth import Progress
+from .estimation.memory import EstimationMemory
+from .estimation.features import FeatureCache
 from .grid import MAX_CELLS, Grid
 from .known_poses import InitPose, transforms_from_poses
-from .settings import EstimationSettings
+from .estimation.settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.pipeline')
 

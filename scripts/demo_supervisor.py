@@ -41,7 +41,7 @@ from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
 from multirobot_map_merge.overlay import save_named_overlay
-from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
+from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
 
 Pose = Tuple[float, float, float]
 # maps arrive with their cells as one numpy array (genpy's default is a tuple of ints: ~20x slower for 12 robots)

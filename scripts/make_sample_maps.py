@@ -26,8 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'
 from fleet_sim.laser import beam_angles, cast  # noqa: E402
 from fleet_sim.mapping import LogOddsMap, relative_pose  # noqa: E402
 from fleet_sim.world import make_floor_plan, obstacle_mask  # noqa: E402
-from multirobot_map_merge.features import crop_to_known  # noqa: E402
-from multirobot_map_merge.grid import Grid  # noqa: E402
+from multirobot_map_merge.grid import Grid, crop_to_known  # noqa: E402
 from multirobot_map_merge.mapio import save_map, save_png  # noqa: E402
 
 WORLD_SEED = 3

@@ -4,7 +4,7 @@
     scripts/env.sh python scripts/param_table.py [map_merge|explore|fleet_sim]   # print one table
     scripts/env.sh python scripts/param_table.py --write                         # update doc/<node>.md
 
-Sources: MapMergeParams (multirobot_map_merge/node_params.py), ExploreParams (explore/params.py) and FleetSimParams
+Sources: MapMergeParams (multirobot_map_merge/ros/params.py), ExploreParams (explore/params.py) and FleetSimParams
 (fleet_sim/params.py), the same as the nodes' docstrings and code defaults, so the docs cannot drift from the code.
 In doc/<node>.md the table sits between `<!-- param_table: NODE -->` and `<!-- /param_table -->`;
 test/test_docs.py checks that it is the generated one. Needs no ROS master.
@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from explore import params as explore_params  # noqa: E402
 from fleet_sim import params as fleet_sim_params  # noqa: E402
-from multirobot_map_merge.node_params import MapMergeParams  # noqa: E402
+from multirobot_map_merge.ros.params import MapMergeParams  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 NODES = ('map_merge', 'explore', 'fleet_sim')

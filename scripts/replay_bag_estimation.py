@@ -24,9 +24,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'
 
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.pipeline import MergingPipeline  # noqa: E402
-from multirobot_map_merge.robot_maps import RobotMap  # noqa: E402
-from multirobot_map_merge.ros_conversions import grid_from_msg, update_from_msg  # noqa: E402
-from multirobot_map_merge.settings import EstimationSettings  # noqa: E402
+from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
+from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
+from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
 
 
 def robot_of(topic: str) -> str:

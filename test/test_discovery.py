@@ -1,9 +1,9 @@
 """Discovery helpers: roscpp name semantics (map_merge.md §3.1) and the robot-map-topic filter (§3.2)."""
 import pytest
 
-from multirobot_map_merge.discovery import (append, clean, init_pose_param_names, parent_namespace,
+from multirobot_map_merge.ros.discovery import (append, clean, init_pose_param_names, parent_namespace,
                                             robot_map_topics, robot_topics)
-from multirobot_map_merge.node_params import MapMergeParams
+from multirobot_map_merge.ros.params import MapMergeParams
 
 GRID = 'nav_msgs/OccupancyGrid'
 

@@ -335,7 +335,7 @@ def test_line_sampling_maps_like_half_cell_sampling(world):
 def test_array_messages_serialise_like_genpy():
     genpy = pytest.importorskip('genpy')
     from fleet_sim.messages import grid_msg, update_msg
-    from multirobot_map_merge.ros_conversions import GridUpdate, grid_to_msg, update_to_msg
+    from multirobot_map_merge.ros.conversions import GridUpdate, grid_to_msg, update_to_msg
     v = np.random.default_rng(0).integers(-1, 101, (30, 40)).astype(np.int8)
     stamp = genpy.Time(5, 0)
     fast, slow = io.BytesIO(), io.BytesIO()

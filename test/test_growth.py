@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation import estimate
-from multirobot_map_merge.features import map_keypoints, pooled_keypoints, prepare
+from multirobot_map_merge.estimation.estimator import estimate
+from multirobot_map_merge.estimation.features import map_keypoints, pooled_keypoints, prepare
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
-from multirobot_map_merge.matching import match_pair
-from multirobot_map_merge.settings import EstimationSettings
+from multirobot_map_merge.estimation.pair import match_pair
+from multirobot_map_merge.estimation.settings import EstimationSettings
 
 
 def _sample(repo_root, name):

@@ -18,8 +18,8 @@ from multirobot_map_merge.admission import admit, clean_cells
 from multirobot_map_merge.compose import compose, select_parts
 from multirobot_map_merge.grid import MAX_CELLS, Grid, GridError
 from multirobot_map_merge.pipeline import MergingPipeline
-from multirobot_map_merge.robot_maps import RobotMap
-from multirobot_map_merge.ros_conversions import grid_from_msg, update_from_msg
+from multirobot_map_merge.ros.robot_maps import RobotMap
+from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg
 
 SEED = int(os.environ.get('HOSTILE_SEED', np.random.SeedSequence().entropy % (1 << 32)))
 ROUNDS = 300
@@ -135,7 +135,7 @@ def test_degenerate_update_rectangles():
     before = robot.snapshot()
     for x, y, w, h in [(0, 0, 0, 2 ** 31 - 1), (0, 5000, 0, 2 ** 31 + 175), (3, 3, 2 ** 31, 0), (9, 9, 0, 0),
                        (20, 0, 0, 5), (0, 20, 5, 0), (2 ** 40, 2 ** 40, 1, 1)]:
-        from multirobot_map_merge.ros_conversions import GridUpdate
+        from multirobot_map_merge.ros.conversions import GridUpdate
         result = robot.apply_update(GridUpdate(x, y, w, h, np.zeros((h, w) if w * h == 0 else (1, 1), np.int8), 2.0))
         assert not result.applied and result.reason
         assert robot.snapshot() is before

@@ -16,7 +16,7 @@ from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.known_poses import InitPose
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline
-from multirobot_map_merge.settings import EstimationSettings
+from multirobot_map_merge.estimation.settings import EstimationSettings
 
 from test_merging_pipeline import placement_error, scenario
 
@@ -199,8 +199,8 @@ def test_repetitive_and_few_descriptor_pairs_are_placed(shared_dir, name):
 def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     """Robot A maps a room, robot B the corridor behind its wall: each sees only its own face of the wall, and
     matching the faces puts the maps a wall's thickness off: the faces neither support nor contradict a placement."""
-    from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.matching import verify
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import verify
     world = np.zeros((200, 240), np.int8)
     world[100:106, 20:220] = 100            # a wall 30 cm thick between a room (below) and a corridor (above)
     world[60:140, 18:20] = 100
@@ -225,8 +225,8 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
 def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
     """At the right placement walls contradict only at the fringe of the other map's view (the ends of its beams);
     a wall well inside an area the other map saw free contradicts the placement."""
-    from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.matching import plausible, verify
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import plausible, verify
     room = np.full((200, 240), -1, np.int8)
     room[40:160, 40:200] = 0
     room[40:160, 40] = room[40:160, 199] = room[40, 40:200] = room[159, 40:200] = 100
@@ -250,9 +250,9 @@ def test_few_shared_walls_close_together_leave_the_placement_imprecise():
     """A robot that saw only one corner of an 18 m hall agrees perfectly with a map of the whole hall, but the two
     short walls of the corner leave the angle loose: a turn about the corner moves the hall's far end by decimetres.
     A view of the hall's whole left third is pinned down by its longer walls."""
-    from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.matching import match_pair, verify
-    from multirobot_map_merge.precision import corner_error
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair, verify
+    from multirobot_map_merge.estimation.precision import corner_error
     hall = np.full((120, 400), -1, np.int8)
     hall[20:100, 20:380] = 0
     hall[20:100, 20] = hall[20:100, 379] = hall[20, 20:380] = hall[99, 20:380] = 100
@@ -302,7 +302,7 @@ def test_evidence_report_shows_the_rival_of_an_ambiguous_pair(repo_root, shared_
 
 
 def test_pair_confidence_counts_verified_correspondences():
-    from multirobot_map_merge.matching import pair_confidence
+    from multirobot_map_merge.estimation.pair import pair_confidence
     assert pair_confidence(0, 100) == 0.0
     assert pair_confidence(300, 300) == pytest.approx(300 / 98.0)
     # a pair passing the acceptance rules (>= 100 agreeing walls, >= 90 % agreement) passes the default 1.0
@@ -341,8 +341,8 @@ def _corner_error(grid, model_m, true_m):
 
 
 def test_polish_returns_a_nudged_placement_to_the_true_one(repo_root):
-    from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.polish import polish
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.polish import polish
     (g1, g2), true_m = _demo_pair(repo_root)
     p2, p1 = prepare(g2, 0.05, 'akaze'), prepare(g1, 0.05, 'akaze')
     true_px = tf.inverse(p1.px_to_map) @ true_m @ p2.px_to_map
@@ -358,8 +358,8 @@ def test_polish_returns_a_nudged_placement_to_the_true_one(repo_root):
 def test_small_thin_walled_overlap_is_placed_precisely(repo_root):
     """A pair from the live demo that ICP alone places a degree and 5 cells off; the polish brings it within the
     demo test's bar (1 degree, 3 cells)."""
-    from multirobot_map_merge.features import prepare
-    from multirobot_map_merge.matching import match_pair
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair
     (g1, g2), true_m = _demo_pair(repo_root)
     p2, p1 = prepare(g2, 0.05, 'akaze'), prepare(g1, 0.05, 'akaze')
     m = match_pair(0, 1, p1, p2, EstimationSettings())
@@ -373,7 +373,7 @@ def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
     resembles another). With the correlation search scored as in earlier versions (no reward for free space seen
     by both, a milder penalty), nothing places it: its earlier placement is kept (tracking refines it) when it still
     agrees with the placed maps, and never kept where it contradicts them."""
-    from multirobot_map_merge.estimation import estimate
+    from multirobot_map_merge.estimation.estimator import estimate
     folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
     starts = json.loads((folder / 'start_poses.json').read_text())
     names = ['robot_1', 'robot_2', 'robot_3']
@@ -402,7 +402,7 @@ def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
 def test_correlation_search_places_a_small_overlap_that_descriptors_miss(repo_root):
     """The lost robot of the test above: its small overlap with robot_3 is found by the correlation search alone,
     and placed within the demo test's bar (1 degree, 3 cells)."""
-    from multirobot_map_merge.estimation import estimate
+    from multirobot_map_merge.estimation.estimator import estimate
     folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
     starts = json.loads((folder / 'start_poses.json').read_text())
     grids = [load_map(str(folder / f'{n}.yaml')) for n in ('robot_1', 'robot_2', 'robot_3')]

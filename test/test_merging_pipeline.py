@@ -8,8 +8,7 @@ import pytest
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.compose import compose
-from multirobot_map_merge.features import crop_to_known
-from multirobot_map_merge.grid import Grid
+from multirobot_map_merge.grid import Grid, crop_to_known
 from multirobot_map_merge.known_poses import InitPose
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline

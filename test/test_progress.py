@@ -4,7 +4,7 @@ import re
 import time
 
 from multirobot_map_merge.progress import TerminalProgress, attach, no_progress, progress_of
-from multirobot_map_merge.settings import EstimationSettings
+from multirobot_map_merge.estimation.settings import EstimationSettings
 
 
 class FakeClock:

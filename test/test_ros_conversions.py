@@ -9,7 +9,7 @@ from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 
 from multirobot_map_merge.grid import MAX_CELLS, Grid, GridError
-from multirobot_map_merge.ros_conversions import (GridUpdate, grid_from_msg, grid_to_msg, update_from_msg,
+from multirobot_map_merge.ros.conversions import (GridUpdate, grid_from_msg, grid_to_msg, update_from_msg,
                                                   update_to_msg, yaw_from_quaternion)
 
 

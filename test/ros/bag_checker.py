@@ -28,7 +28,7 @@ from nav_msgs.msg import OccupancyGrid
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.mapio import load_map
-from multirobot_map_merge.ros_conversions import grid_from_msg
+from multirobot_map_merge.ros.conversions import grid_from_msg
 
 PKG = 'multirobot_map_merge'
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

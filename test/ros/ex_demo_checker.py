@@ -23,7 +23,7 @@ from nav_msgs.msg import OccupancyGrid
 from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.msg import MergeStatus
-from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
+from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
 
 PKG = 'multirobot_map_merge'
 

@@ -27,7 +27,7 @@ from rosgraph_msgs.msg import Log
 from std_msgs.msg import Bool
 
 from explore.coverage import explored_share, reachable_mask
-from multirobot_map_merge.ros_conversions import grid_from_msg, yaw_from_quaternion
+from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
 
 PKG = 'multirobot_map_merge'
 

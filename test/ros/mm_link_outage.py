@@ -45,7 +45,7 @@ def run_robot(args) -> None:
     from map_msgs.msg import OccupancyGridUpdate
     from nav_msgs.msg import OccupancyGrid
     from multirobot_map_merge.grid import Grid
-    from multirobot_map_merge.ros_conversions import grid_to_msg
+    from multirobot_map_merge.ros.conversions import grid_to_msg
     rospy.init_node('remote_robot')
     for key, value in (('x', 0.0), ('y', 0.0), ('z', 0.0), ('yaw', 0.0)):
         rospy.set_param(f'/remote/map_merge/init_pose_{key}', value)

@@ -9,7 +9,7 @@ import rospy
 from nav_msgs.msg import OccupancyGrid
 
 from mm_common import load_spec
-from multirobot_map_merge.ros_conversions import grid_to_msg
+from multirobot_map_merge.ros.conversions import grid_to_msg
 
 
 def main():

@@ -24,7 +24,7 @@ from nav_msgs.msg import OccupancyGrid
 import mm_common as mm
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.msg import MergeStatus
-from multirobot_map_merge.ros_conversions import grid_to_msg
+from multirobot_map_merge.ros.conversions import grid_to_msg
 
 
 def turned(grid: Grid, degrees: float) -> Grid:

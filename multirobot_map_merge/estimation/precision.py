@@ -15,7 +15,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from . import transforms as tf
+from .. import transforms as tf
 from .features import PreparedGrid, opposed
 
 INFLATION = 10.0

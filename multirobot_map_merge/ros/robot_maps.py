@@ -22,8 +22,8 @@ from typing import Optional
 
 import numpy as np
 
-from .grid import Grid
-from .ros_conversions import GridUpdate
+from ..grid import Grid
+from .conversions import GridUpdate
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import numpy as np
 from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 
-from .grid import Grid, GridError, validate_geometry
+from ..grid import Grid, GridError, validate_geometry
 
 StampLike = Union[None, float, int, genpy.Time]
 

@@ -13,10 +13,10 @@ from typing import Callable, Dict, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from . import transforms as tf
-from .compose import compose
-from .features import PreparedGrid, crop_to_known, map_keypoints, pooled_keypoints, prepare
-from .grid import Grid
+from .. import transforms as tf
+from ..compose import compose
+from .features import PreparedGrid, map_keypoints, pooled_keypoints, prepare
+from ..grid import Grid, crop_to_known
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
 HISTORY = 4   # prepared versions of a union kept to tell where it changed

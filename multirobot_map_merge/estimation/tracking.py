@@ -18,16 +18,16 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import transforms as tf
+from .. import transforms as tf
 from .features import PreparedGrid, prepare
-from .grid import Grid
+from ..grid import Grid
 from .memory import EstimationMemory, unchanged
-from .matching import PairMatch, icp, pair_confidence, plausible, refusal, verify
+from .pair import PairMatch, icp, pair_confidence, plausible, refusal, verify
 from .polish import polish
 from .settings import EstimationSettings
 from .union import Box, compose_near, footprint, most_overlapping
 
-log = logging.getLogger('rosout.multirobot_map_merge.tracking')
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.tracking')
 
 CONTEXT_M = 1.0   # metres around a grid's footprint taken from the other grids' union
 MAX_PASSES = 3    # checks of the previous placements: after that, every one still failing is dropped

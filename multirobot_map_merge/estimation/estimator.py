@@ -20,15 +20,15 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from .features import FeatureCache
-from .grid import Grid
+from ..grid import Grid
 from .growth import Group, Grower, Progress
-from .matching import PairMatch
+from .pair import PairMatch
 from .memory import EstimationMemory
-from .progress import progress_of
+from ..progress import progress_of
 from .settings import EstimationSettings
 from .tracking import track
 
-log = logging.getLogger('rosout.multirobot_map_merge.estimation')
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 
 
 @dataclass

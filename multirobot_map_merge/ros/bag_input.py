@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
 from .discovery import OCCUPANCY_GRID_TYPE, append, is_robot_map_topic, parent_namespace
-from .grid import Grid, GridError
+from ..grid import Grid, GridError
 from .robot_maps import RobotMap
 
 UPDATE_TYPE = 'map_msgs/OccupancyGridUpdate'
 
-log = logging.getLogger('rosout.multirobot_map_merge.bag_input')
+log = logging.getLogger('rosout.multirobot_map_merge.ros.bag_input')
 
 
 class BagError(Exception):
@@ -164,7 +164,7 @@ def _header_stamp_and_shape(data: bytes) -> Tuple[Optional[float], Optional[Tupl
 
 def _apply(robot: BagRobot, store: RobotMap, is_full: bool, msg) -> bool:
     """Feed one message to the robot's map; False if it is a malformed full map."""
-    from .ros_conversions import grid_from_msg, update_from_msg   # message types: imported with rosbag
+    from .conversions import grid_from_msg, update_from_msg   # message types: imported with rosbag
     try:
         if is_full:
             store.set_full(grid_from_msg(msg))

@@ -63,18 +63,18 @@ from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
-from . import transforms as tf
-from .admission import describe_invalid
+from .. import transforms as tf
+from ..admission import describe_invalid
 from .discovery import append, init_pose_param_names, robot_map_topics, robot_topics
-from .features import FeatureCache
-from .grid import Grid, GridError
-from .known_poses import InitPose
-from .msg import MergeStatus, PairMatchStatus, RobotMergeStatus
-from .node_params import MapMergeParams
-from .pipeline import MergingPipeline
+from ..estimation.features import FeatureCache
+from ..grid import Grid, GridError
+from ..known_poses import InitPose
+from ..msg import MergeStatus, PairMatchStatus, RobotMergeStatus
+from .params import MapMergeParams
+from ..pipeline import MergingPipeline
 from .robot_maps import RobotMap
-from .ros_conversions import grid_from_msg, grid_to_msg, update_from_msg
-from .throttle import Throttle
+from .conversions import grid_from_msg, grid_to_msg, update_from_msg
+from ..throttle import Throttle
 
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these

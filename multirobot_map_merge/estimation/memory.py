@@ -13,7 +13,7 @@ from typing import Hashable, Optional, Tuple
 
 import numpy as np
 
-from .grid import Grid
+from ..grid import Grid
 
 GROWTH = 0.2      # share of a map's known cells that may be added before a verdict on it is made again
 REVISION = 0.02   # share of its known cells that may change before a verdict on it is made again

@@ -16,10 +16,10 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from . import transforms as tf
-from .grid import Grid
+from .. import transforms as tf
+from ..grid import Grid, crop_to_known
 
-log = logging.getLogger('rosout.multirobot_map_merge.features')
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.features')
 
 FEATURE_TYPES = ('akaze', 'orb', 'sift')
 CROP_MARGIN = 4  # cells kept around the known part, so features at its border see some context
@@ -67,18 +67,6 @@ class PreparedGrid:
             nn[inside] = self.walls[idx]
             dist[inside] = np.hypot(*(nn[inside] - pts[inside]).T)
         return nn, dist
-
-
-def crop_to_known(data: np.ndarray, margin: int = CROP_MARGIN):
-    """(row0, row1, col0, col1) of the known part plus a margin, or None if nothing is known."""
-    known = data >= 0
-    rows = np.flatnonzero(known.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(known[rows[0]:rows[-1] + 1].any(axis=0))
-    h, w = data.shape
-    return (max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h),
-            max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w))
 
 
 def resample(data: np.ndarray, scale: float) -> np.ndarray:
@@ -142,7 +130,7 @@ def make_detector(kind: str):
 def prepare(grid: Grid, work_resolution: float, feature: Optional[str], lazy: bool = False) -> Optional[PreparedGrid]:
     """Crop, resample and describe one grid (no keypoints if feature is None; with `lazy`, only at describe());
     None if no cell is known."""
-    box = crop_to_known(grid.data)
+    box = crop_to_known(grid.data, CROP_MARGIN)
     if box is None:
         return None
     r0, r1, c0, c1 = box

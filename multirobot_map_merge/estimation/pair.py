@@ -17,14 +17,14 @@ from typing import List, Optional, Tuple
 import cv2
 import numpy as np
 
-from . import transforms as tf
+from .. import transforms as tf
 from .features import PreparedGrid, free_side_field, opposed
 from .polish import polish
 from .precision import corner_error
 from .search import correlate_candidates
 from .settings import EstimationSettings
 
-log = logging.getLogger('rosout.multirobot_map_merge.matching')
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.pair')
 
 FOUND_AGREEMENT = 0.6   # see overlap_found
 POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished, the best kept

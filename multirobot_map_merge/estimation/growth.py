@@ -16,10 +16,10 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from . import transforms as tf
+from .. import transforms as tf
 from .features import PreparedGrid, map_keypoints
-from .grid import Grid
-from .matching import PairMatch, match_pair, overlap_found
+from ..grid import Grid
+from .pair import PairMatch, match_pair, overlap_found
 from .memory import EstimationMemory, unchanged
 from .settings import EstimationSettings
 from .union import UnionMap

@@ -18,7 +18,7 @@ from typing import Callable, Sequence, Tuple
 
 import numpy as np
 
-from . import transforms as tf
+from .. import transforms as tf
 from .features import PreparedGrid
 
 TAU = 3.0            # pixels: a wall further than this from the other's walls costs the same however far
