@@ -200,7 +200,7 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     """Robot A maps a room, robot B the corridor behind its wall: each sees only its own face of the wall, and
     matching the faces puts the maps a wall's thickness off: the faces neither support nor contradict a placement."""
     from multirobot_map_merge.estimation.features import prepare
-    from multirobot_map_merge.estimation.pair import verify
+    from multirobot_map_merge.estimation.verify import verify
     world = np.zeros((200, 240), np.int8)
     world[100:106, 20:220] = 100            # a wall 30 cm thick between a room (below) and a corridor (above)
     world[60:140, 18:20] = 100
@@ -226,7 +226,7 @@ def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
     """At the right placement walls contradict only at the fringe of the other map's view (the ends of its beams);
     a wall well inside an area the other map saw free contradicts the placement."""
     from multirobot_map_merge.estimation.features import prepare
-    from multirobot_map_merge.estimation.pair import plausible, verify
+    from multirobot_map_merge.estimation.verify import plausible, verify
     room = np.full((200, 240), -1, np.int8)
     room[40:160, 40:200] = 0
     room[40:160, 40] = room[40:160, 199] = room[40, 40:200] = room[159, 40:200] = 100
@@ -251,7 +251,8 @@ def test_few_shared_walls_close_together_leave_the_placement_imprecise():
     short walls of the corner leave the angle loose: a turn about the corner moves the hall's far end by decimetres.
     A view of the hall's whole left third is pinned down by its longer walls."""
     from multirobot_map_merge.estimation.features import prepare
-    from multirobot_map_merge.estimation.pair import match_pair, verify
+    from multirobot_map_merge.estimation.pair import match_pair
+    from multirobot_map_merge.estimation.verify import verify
     from multirobot_map_merge.estimation.precision import corner_error
     hall = np.full((120, 400), -1, np.int8)
     hall[20:100, 20:380] = 0
@@ -302,7 +303,7 @@ def test_evidence_report_shows_the_rival_of_an_ambiguous_pair(repo_root, shared_
 
 
 def test_pair_confidence_counts_verified_correspondences():
-    from multirobot_map_merge.estimation.pair import pair_confidence
+    from multirobot_map_merge.estimation.verify import pair_confidence
     assert pair_confidence(0, 100) == 0.0
     assert pair_confidence(300, 300) == pytest.approx(300 / 98.0)
     # a pair passing the acceptance rules (>= 100 agreeing walls, >= 90 % agreement) passes the default 1.0

@@ -26,6 +26,18 @@ CROP_MARGIN = 4  # cells kept around the known part, so features at its border s
 
 
 @dataclass
+class FeatureSettings:
+    feature: str = 'akaze'            # keypoint detector: akaze (as the C++ node), orb (as the thesis) or sift
+    min_work_resolution: float = 0.05  # m/pixel: finer maps are matched at this resolution
+
+    def validate(self) -> None:
+        if self.feature not in FEATURE_TYPES:
+            raise ValueError(f"feature must be one of {', '.join(FEATURE_TYPES)}, not '{self.feature}'")
+        if not self.min_work_resolution > 0:
+            raise ValueError(f'min_work_resolution must be positive, not {self.min_work_resolution}')
+
+
+@dataclass
 class PreparedGrid:
     """A grid ready for matching. Pixel coordinates are (x = column, y = row) of the working image."""
     work: np.ndarray            # int8 working grid (-1/0/100), cropped and resampled

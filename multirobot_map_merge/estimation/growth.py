@@ -19,7 +19,8 @@ import numpy as np
 from .. import transforms as tf
 from .features import PreparedGrid, map_keypoints
 from ..grid import Grid
-from .pair import PairMatch, match_pair, overlap_found
+from .pair import PairMatch, match_pair
+from .verify import overlap_found
 from .memory import EstimationMemory, unchanged
 from .settings import EstimationSettings
 from .union import UnionMap

@@ -20,9 +20,23 @@ import cv2
 import numpy as np
 
 from .features import PreparedGrid
+from .validation import must_not_be_negative
 
 PENALTY = 3.0
 FREE_REWARD = 0.3
+
+
+@dataclass
+class SearchSettings:
+    search_factor: int = 4            # working pixels per pixel of the correlation search
+    search_sweep_degrees: float = 3.0  # rotation step of the search for maps without straight walls
+    search_penalty: float = PENALTY   # correlation search: cost of a wall on the other's open floor
+    search_free_reward: float = FREE_REWARD  # correlation search: reward of floor both maps saw free
+    search_keep: int = 8              # correlation search: candidates refined
+    search_budget_s: float = math.inf  # correlation searches of one estimation stop after this many seconds
+
+    def validate(self) -> None:
+        must_not_be_negative(self, 'search_penalty', 'search_free_reward', 'search_keep', 'search_budget_s')
 
 
 @dataclass

@@ -22,7 +22,9 @@ from .. import transforms as tf
 from .features import PreparedGrid, prepare
 from ..grid import Grid
 from .memory import EstimationMemory, unchanged
-from .pair import PairMatch, icp, pair_confidence, plausible, refusal, verify
+from .pair import PairMatch
+from .refine import icp
+from .verify import pair_confidence, plausible, refusal, verify
 from .polish import polish
 from .settings import EstimationSettings
 from .union import Box, compose_near, footprint, most_overlapping

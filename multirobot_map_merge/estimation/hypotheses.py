@@ -1,0 +1,119 @@
+"""Candidate screen: rigid placements proposed by descriptor matches, and a cheap screen before refinement.
+
+Putative descriptor matches (ratio test, both directions, their union as the original) give several rigid RANSAC
+hypotheses (the metadata fixes the scale, so the model is rigid), each found after removing the inliers of the
+previous ones. A hypothesis is refined only if enough sampled walls of one map land near walls of the other.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, List, Optional, Tuple
+
+import cv2
+import numpy as np
+
+from .. import transforms as tf
+from .features import PreparedGrid
+from .validation import must_be_positive
+
+if TYPE_CHECKING:
+    from .settings import EstimationSettings
+
+
+@dataclass
+class HypothesisSettings:
+    ratio: float = 0.8                # descriptor ratio test
+    ransac_threshold: float = 3.0     # pixels
+    ransac_iterations: int = 2000
+    max_hypotheses: int = 5           # rigid models tried per pair
+    min_inliers: int = 4              # RANSAC inliers a model needs
+    screen_points: int = 600          # wall pixels sampled to screen a hypothesis before refining it
+    screen_tolerance: float = 4.0     # pixels
+    screen_min_agreement: float = 0.5
+
+    def validate(self) -> None:
+        must_be_positive(self, 'ratio', 'ransac_threshold', 'ransac_iterations', 'max_hypotheses')
+
+
+def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True) -> np.ndarray:
+    """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction (or only from
+    i to j: j is a union, most of whose keypoints are nowhere in i)."""
+    pi.describe(), pj.describe()
+    if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
+        return np.zeros((0, 2), np.int64)
+    norm = cv2.NORM_HAMMING if pi.descriptors.dtype == np.uint8 else cv2.NORM_L2
+    matcher = cv2.BFMatcher(norm)
+    found = set()
+    directions = ((pi.descriptors, pj.descriptors, False), (pj.descriptors, pi.descriptors, True))
+    for query, train, swapped in directions[:2 if both_ways else 1]:
+        for pair in matcher.knnMatch(query, train, k=2):
+            if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance:
+                a, b = pair[0].queryIdx, pair[0].trainIdx
+                found.add((b, a) if swapped else (a, b))
+    return np.array(sorted(found), np.int64).reshape(-1, 2)
+
+
+def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int,
+                 rng: np.random.Generator) -> Tuple[Optional[np.ndarray], np.ndarray]:
+    """Best rigid transform p -> q by 2-point RANSAC (vectorised over all hypotheses), refit on its inliers."""
+    n = len(p)
+    if n < 3:
+        return None, np.zeros(n, bool)
+    idx = rng.integers(0, n, (iterations, 2))
+    idx = idx[idx[:, 0] != idx[:, 1]]
+    dp = p[idx[:, 1]] - p[idx[:, 0]]
+    dq = q[idx[:, 1]] - q[idx[:, 0]]
+    lp, lq = np.hypot(*dp.T), np.hypot(*dq.T)
+    # a rigid motion keeps distances: drop samples that cannot be one (and too short ones: bad angle)
+    keep = (lp > 5.0) & (np.abs(lp - lq) < 1.5 * threshold)
+    idx, dp, dq = idx[keep], dp[keep], dq[keep]
+    if len(idx) == 0:
+        return None, np.zeros(n, bool)
+    ang = np.arctan2(dq[:, 1], dq[:, 0]) - np.arctan2(dp[:, 1], dp[:, 0])
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    p0, q0 = p[idx[:, 0]], q[idx[:, 0]]
+    tx = (q0[:, 0] - (c[:, 0] * p0[:, 0] - s[:, 0] * p0[:, 1]))[:, None]
+    ty = (q0[:, 1] - (s[:, 0] * p0[:, 0] + c[:, 0] * p0[:, 1]))[:, None]
+    ex = c * p[:, 0] - s * p[:, 1] + tx - q[:, 0]
+    ey = s * p[:, 0] + c * p[:, 1] + ty - q[:, 1]
+    inliers = ex * ex + ey * ey < threshold * threshold
+    mask = inliers[np.argmax(inliers.sum(axis=1))]
+    model = None
+    for _ in range(3):
+        if mask.sum() < 3:
+            break
+        model = tf.kabsch(p[mask], q[mask])
+        mask = np.hypot(*(tf.apply(model, p) - q).T) < threshold
+    return model, mask
+
+
+def hypotheses(p: np.ndarray, q: np.ndarray, s: EstimationSettings, rng: np.random.Generator) -> List[np.ndarray]:
+    """Up to s.max_hypotheses rigid models, each found after removing the inliers of the previous ones."""
+    found = []
+    remaining = np.arange(len(p))
+    while len(found) < s.max_hypotheses and len(remaining) >= s.min_inliers:
+        model, mask = ransac_rigid(p[remaining], q[remaining], s.ransac_threshold, s.ransac_iterations, rng)
+        if model is None or mask.sum() < s.min_inliers:
+            break
+        found.append(model)
+        remaining = remaining[~mask]
+    return found
+
+
+def quick_agreement(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings,
+                    rng: np.random.Generator) -> float:
+    """Share of sampled walls of i that land near a wall of j, among those landing on j's known area.
+
+    A cheap screen before ICP: hypotheses from unrelated maps score near zero, rough but right ones well above.
+    """
+    src = pi.walls
+    if len(src) > s.screen_points:
+        src = src[rng.choice(len(src), s.screen_points, replace=False)]
+    moved = np.rint(tf.apply(model, src)).astype(np.int64)
+    h, w = pj.work.shape
+    inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h)
+    x, y = moved[inside, 0], moved[inside, 1]
+    on_known = pj.work[y, x] >= 0
+    if on_known.sum() < 20:
+        return 0.0
+    return float((pj.wall_distance[y[on_known], x[on_known]] <= s.screen_tolerance).mean())

@@ -1,0 +1,62 @@
+"""Refinement: ICP of one map's walls onto the other's nearest walls, from a candidate placement.
+
+Point-to-point, with a shrinking correspondence radius (coarse capture first, then precise). Walls seen from
+opposite sides are a wall's two faces, not the same wall, and do not pair (`facing`). Placements on a small common
+area are polished further afterwards (polish.py), which ICP alone leaves imprecise there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import transforms as tf
+from .features import PreparedGrid, opposed
+from .validation import must_be_positive
+
+if TYPE_CHECKING:
+    from .settings import EstimationSettings
+
+
+@dataclass
+class RefineSettings:
+    icp_radii: tuple = (6.0, 4.0, 3.0, 2.0)  # pixels: correspondence radius of each ICP level
+    icp_iterations: int = 6           # at most, per level
+    icp_max_points: int = 2000
+    facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP
+    polish_below_support: int = 300   # polish placements with fewer agreeing walls than this (polish.py); 0: never
+    polish_below_overlap_m2: float = 15.0  # and those with a common area smaller than this (a small map's angle)
+
+    def validate(self) -> None:
+        must_be_positive(self, 'icp_iterations', 'icp_max_points')
+
+
+def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSettings,
+        rng: np.random.Generator) -> np.ndarray:
+    """Refine a pixel transform i -> j by point-to-point ICP of i's walls onto j's nearest walls."""
+    src, src_side = pi.walls, pi.wall_normals
+    if len(src) > s.icp_max_points:
+        pick = rng.choice(len(src), s.icp_max_points, replace=False)
+        src, src_side = src[pick], src_side[pick]
+    model = start.copy()
+    if len(src) < 10 or len(pj.walls) < 10:
+        return model
+    # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
+    for radius in s.icp_radii:
+        for _ in range(s.icp_iterations):
+            moved = tf.apply(model, src)
+            nn, dist = pj.nearest(moved)
+            close = dist < radius
+            if s.facing and close.any():
+                # a wall's two faces are not the same wall: pair only walls seen from the same side
+                turned = src_side[close] @ model[:2, :2].T
+                far_side = pj.free_side[nn[close, 1].astype(np.int64), nn[close, 0].astype(np.int64)]
+                close[np.flatnonzero(close)[opposed(turned, far_side)]] = False
+            if close.sum() < 10:
+                return model
+            step = tf.kabsch(moved[close], nn[close])
+            model = step @ model
+            if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
+                break
+    return model

@@ -1,0 +1,187 @@
+"""Verification and the acceptance rules: does a placement of grid i on grid j deserve trust?
+
+Walls of one map must lie on walls of the other wherever both are known (`verify`). A pair is accepted only when
+its best placement agrees well, overlaps enough, has enough support, (almost) never contradicts well inside both
+maps' views, and is pinned down precisely enough by the walls the maps share (precision.py); pair.py adds that no
+clearly different placement may agree almost as well (symmetric buildings make such aliases; a guess there would
+be a wrong merge).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Optional
+
+import cv2
+import numpy as np
+
+from .. import transforms as tf
+from .features import PreparedGrid, free_side_field, opposed
+from .precision import corner_error
+from .validation import must_be_positive, must_not_be_negative
+
+if TYPE_CHECKING:
+    from .settings import EstimationSettings
+
+FOUND_AGREEMENT = 0.6   # see overlap_found
+
+
+@dataclass
+class AcceptanceSettings:
+    confidence: float = 1.0           # inliers / (8 + 0.3 matches) a pair needs, as the original (see pair_confidence)
+    verify_tolerance: float = 2.0     # pixels: a wall "agrees" when the other map has a wall this close
+    min_agreement: float = 0.91       # share of walls in the common area that agree (fringe ones aside)
+    min_overlap_m2: float = 4.0       # common known area a pair needs
+    min_support: int = 100            # agreeing wall pixels a pair needs
+    deep_conflict_m: float = 0.2      # a contradicting wall this far inside the other map's view is not at its fringe
+    max_deep_conflicts: float = 0.01  # such contradictions a pair tolerates, as a share of its agreeing walls
+    max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
+    fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
+    conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
+    ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
+    distinct_degrees: float = 5.0     # placements further apart than this are distinct
+    distinct_metres: float = 1.0
+
+    def validate(self) -> None:
+        must_be_positive(self, 'verify_tolerance')
+        if not 0.0 <= self.min_agreement <= 1.0:
+            raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
+        must_not_be_negative(self, 'deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m')
+        if self.confidence != self.confidence:
+            raise ValueError('confidence must be a number, not NaN')
+
+
+@dataclass
+class Placement:
+    """A candidate rigid transform from pixels of grid i to pixels of grid j, with its verification figures."""
+    transform: np.ndarray
+    support: int = 0            # wall pixels (of both maps) that lie on a wall of the other map
+    agreement: float = 0.0      # support / (support + conflicts other than fringe_conflicts)
+    overlap_m2: float = 0.0     # common known area
+    conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
+    opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
+    deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
+    fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
+    corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
+
+    def score(self, conflict_weight: float) -> float:
+        """Support less weighted conflicts: a shifted alias in a repetitive building overlaps more (more support)
+        but also contradicts more than the right placement, which contradicts almost nowhere."""
+        return self.support - conflict_weight * self.conflicts
+
+
+def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
+    """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j.
+
+    Only walls in the common known area count. A wall near a wall of the other map supports the placement, unless
+    the two were seen from opposite sides (a wall's two faces: neither support nor conflict); any other wall there
+    contradicts it. A contradiction at the fringe of the other map's view (the ends of its beams) is common at the
+    right placement and does not lower the agreement (fringe_conflicts); one well inside it is rare there
+    (deep_conflicts).
+    """
+    h, w = pj.work.shape
+    warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
+    both = (warped >= 0) & (pj.work >= 0)
+    rows, cols = np.nonzero(both)
+    result = Placement(model, overlap_m2=float(rows.size) * pi.resolution ** 2)
+    if rows.size == 0:
+        return result
+    # everything else only where both maps are known (plus a margin for the distance and side fields)
+    r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
+    c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
+    wi, wj, both = warped[r0:r1, c0:c1], pj.work[r0:r1, c0:c1], both[r0:r1, c0:c1]
+    walls_i = both & (wi >= 50)
+    walls_j = both & (wj >= 50)
+    n_i, n_j = int(walls_i.sum()), int(walls_j.sum())
+    if n_i + n_j == 0:
+        return result
+    dist_i = cv2.distanceTransform(np.where(wi >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+    tol = s.verify_tolerance
+    near_j = pj.wall_distance[r0:r1, c0:c1] <= tol
+    near_i = dist_i <= tol
+    agree_i, agree_j = walls_i & near_j, walls_j & near_i
+    support = int(agree_i.sum()) + int(agree_j.sum())
+    neutral = 0
+    if s.facing and support:
+        # only at the agreeing walls: the side fields are costly over the whole area
+        rows, cols = np.nonzero(agree_i | agree_j)
+        weight = agree_i[rows, cols].astype(np.int64) + agree_j[rows, cols]
+        side_i = free_side_field(wi)[rows, cols]
+        faces = opposed(side_i, pj.free_side[rows + r0, cols + c0])
+        neutral = int(weight[faces].sum())
+        support -= neutral
+    result.support = support
+    result.conflicts = n_i + n_j - support - neutral
+    # how deep inside the other map's view each contradicting wall lies
+    depth = [pj.known_depth[r0:r1, c0:c1][walls_i & ~near_j]]
+    rows, cols = np.nonzero(walls_j & ~near_i)
+    if rows.size:
+        # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
+        back = np.rint(tf.apply(tf.inverse(model), np.column_stack([cols + c0, rows + r0]))).astype(np.int64)
+        hi, wi_ = pi.work.shape
+        inside = (back[:, 0] >= 0) & (back[:, 1] >= 0) & (back[:, 0] < wi_) & (back[:, 1] < hi)
+        depth.append(pi.known_depth[back[inside, 1], back[inside, 0]])
+    depth = np.concatenate(depth)
+    result.deep_conflicts = int((depth > s.deep_conflict_m / pi.resolution).sum())
+    result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
+    result.opposed = neutral
+    result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
+    return result
+
+
+def plausible(c: Placement, s: EstimationSettings) -> bool:
+    """Agrees well over a common area large enough to mean something, and (almost) everywhere well inside both
+    maps' views."""
+    return (c.agreement >= s.min_agreement and c.overlap_m2 >= s.min_overlap_m2 and c.support >= s.min_support
+            and c.deep_conflicts <= s.max_deep_conflicts * c.support)
+
+
+def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings, onto_union: bool = False) -> str:
+    """Why placement c of grid i on grid j fails the pair acceptance rules ('' if it passes): agreement, overlap,
+    support, deep contradictions (as `plausible`), then precision, the costly one, which it stores in c. With
+    `onto_union`, j is the union of a placed group: precision counts at grid i's corners only (the union stays)."""
+    if c.agreement < s.min_agreement:
+        return f'agreement {c.agreement:.2f} < {s.min_agreement:.2f}'
+    if c.overlap_m2 < s.min_overlap_m2:
+        return f'overlap {c.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
+    if c.support < s.min_support:
+        return f'support {c.support} < {s.min_support}'
+    if c.deep_conflicts > s.max_deep_conflicts * c.support:
+        return (f'{c.deep_conflicts} contradicting walls well inside both maps, more than '
+                f'{s.max_deep_conflicts:.0%} of {c.support} agreeing')
+    c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
+    if c.corner_error_m > s.max_corner_error_m:
+        return (f'imprecise: the shared walls leave the far corners uncertain by '
+                f'{c.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
+    return ''
+
+
+def distinct(a: np.ndarray, b: np.ndarray, pi: PreparedGrid, s: EstimationSettings) -> bool:
+    """Whether two placements (pixel transforms of grid i) are different places, not two estimates of one."""
+    h, w = pi.work.shape
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+    rot, disp = tf.difference(a, b, corners)
+    return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
+
+
+def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: bool = False) -> bool:
+    """Whether a placement shows the maps' overlap although it fails the rules: it agrees except for contradictions
+    inside both views (a map broken by a SLAM failure), or, onto a union, it has twice the support a pair needs
+    and agrees mostly (a broken map fits the union in part). Then a search would find the same placement."""
+    if c is None:
+        return False
+    return (plausible(c, s.replace(max_deep_conflicts=math.inf))
+            or (onto_union and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2
+                and c.agreement >= FOUND_AGREEMENT))
+
+
+def pair_confidence(inliers: int, matches: int) -> float:
+    """The original's confidence, inliers / (8 + 0.3 matches) (Brown & Lowe), here on verified correspondences.
+
+    The original counts descriptor matches; on occupancy grids these are few and mostly wrong, so its threshold
+    (default 1.0) says little. Counted on wall pixels, 1.0 means about a third of the walls in the common area
+    agree; the acceptance rules (min_agreement etc.) are stricter, so the default threshold never decides alone,
+    and a higher one (up to about 3.3 = every wall agrees) asks for more agreement.
+    """
+    return inliers / (8.0 + 0.3 * matches)
