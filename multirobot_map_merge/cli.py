@@ -35,13 +35,13 @@ import yaml
 from . import transforms as tf
 from .admission import describe_invalid
 from .estimation.features import FEATURE_TYPES
-from .known_poses import InitPose
+from .estimation.settings import EstimationSettings
 from .grid import Grid
+from .known_poses import InitPose
 from .mapio import MapFileError, load_map, save_map, save_png
 from .overlay import overlay_path, save_overlay, used_pairs
 from .pipeline import MergingPipeline
 from .progress import TerminalProgress, attach
-from .estimation.settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.cli')
 

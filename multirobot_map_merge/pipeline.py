@@ -20,12 +20,12 @@ from . import transforms as tf
 from .admission import admit
 from .compose import compose
 from .estimation.estimator import Estimate, estimate
+from .estimation.features import FeatureCache
 from .estimation.growth import Progress
 from .estimation.memory import EstimationMemory
-from .estimation.features import FeatureCache
+from .estimation.settings import EstimationSettings
 from .grid import MAX_CELLS, Grid
 from .known_poses import InitPose, transforms_from_poses
-from .estimation.settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.pipeline')
 

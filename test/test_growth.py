@@ -1,5 +1,5 @@
 """Growing the merge: newcomers matched against the union of the placed maps, tracking of previous placements,
-and the union's pooled keypoints (estimation.py, union.py, tracking.py)."""
+and the union's pooled keypoints (estimation/: estimator.py, union.py, tracking.py)."""
 import json
 import math
 

@@ -19,12 +19,12 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from .features import FeatureCache
 from ..grid import Grid
-from .growth import Group, Grower, Progress
-from .pair import PairMatch
-from .memory import EstimationMemory
 from ..progress import progress_of
+from .features import FeatureCache
+from .growth import Group, Grower, Progress
+from .memory import EstimationMemory
+from .pair import PairMatch
 from .settings import EstimationSettings
 from .tracking import track
 

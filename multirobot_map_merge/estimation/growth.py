@@ -17,13 +17,13 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid, map_keypoints
 from ..grid import Grid
-from .pair import PairMatch, match_pair
-from .verify import overlap_found
+from .features import PreparedGrid, map_keypoints
 from .memory import EstimationMemory, unchanged
+from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
 from .union import UnionMap
+from .verify import overlap_found
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor

@@ -19,15 +19,15 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid, prepare
 from ..grid import Grid
+from .features import PreparedGrid, prepare
 from .memory import EstimationMemory, unchanged
 from .pair import PairMatch
-from .refine import icp
-from .verify import pair_confidence, plausible, refusal, verify
 from .polish import polish
+from .refine import icp
 from .settings import EstimationSettings
 from .union import Box, compose_near, footprint, most_overlapping
+from .verify import pair_confidence, plausible, refusal, verify
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.tracking')
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from .. import transforms as tf
 from ..compose import compose
-from .features import PreparedGrid, map_keypoints, pooled_keypoints, prepare
 from ..grid import Grid, crop_to_known
+from .features import PreparedGrid, map_keypoints, pooled_keypoints, prepare
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
 HISTORY = 4   # prepared versions of a union kept to tell where it changed

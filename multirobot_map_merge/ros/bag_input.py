@@ -14,8 +14,8 @@ import struct
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
-from .discovery import OCCUPANCY_GRID_TYPE, append, is_robot_map_topic, parent_namespace
 from ..grid import Grid, GridError
+from .discovery import OCCUPANCY_GRID_TYPE, append, is_robot_map_topic, parent_namespace
 from .robot_maps import RobotMap
 
 UPDATE_TYPE = 'map_msgs/OccupancyGridUpdate'

@@ -13,15 +13,18 @@ ints; bytes are refused for int8[] ("Only uint8[] can be a string"). ``ndarray.t
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
-from typing import Optional, Sequence, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import genpy
 import numpy as np
+from geometry_msgs.msg import Transform
 from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 
+from .. import transforms as tf
 from ..grid import Grid, GridError, validate_geometry
 
 StampLike = Union[None, float, int, genpy.Time]
@@ -143,3 +146,29 @@ def update_to_msg(update: GridUpdate) -> OccupancyGridUpdate:
     msg.x, msg.y, msg.width, msg.height = update.x, update.y, update.width, update.height
     msg.data = np.asarray(update.data, dtype=np.int8).reshape(-1).tolist()
     return msg
+
+
+def transform_msg(m: np.ndarray) -> Transform:
+    """A geometry_msgs/Transform of a metric 2-D transform (3x3)."""
+    x, y, yaw, _ = tf.params(m)
+    t = Transform()
+    t.translation.x, t.translation.y = x, y
+    t.rotation.z, t.rotation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+    return t
+
+
+def center_origin(merged: Grid) -> Tuple[float, float, float]:
+    """The original's origin (§7.3 step 7): canvas centred on world_frame, resolution as float32 widened."""
+    res = float(np.float32(merged.resolution))
+    return (-(merged.width / 2.0) * res, -(merged.height / 2.0) * res, 0.0)
+
+
+def restamped(msg: OccupancyGrid, stamp) -> OccupancyGrid:
+    """A fresh copy of a merged map message with a new stamp; the (never modified) data list is shared."""
+    out = OccupancyGrid()
+    out.header.frame_id = msg.header.frame_id
+    out.header.stamp = stamp
+    out.info = copy.deepcopy(msg.info)
+    out.info.map_load_time = stamp
+    out.data = msg.data
+    return out

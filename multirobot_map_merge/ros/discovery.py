@@ -1,11 +1,14 @@
-"""Robot discovery (map_merge.md §3), pure: roscpp's name helpers and the robot-map-topic filter.
+"""Robot discovery (map_merge.md §3), pure: init poses from parameters, roscpp's name helpers and the robot-map-topic filter.
 
 roscpp's names::clean/append/parentNamespace are reproduced exactly; rospy's own helpers differ (e.g.
 rospy.names.namespace('/robot1/map') == '/robot1/', with a trailing slash), so they must not be used here.
 """
 from __future__ import annotations
 
-from typing import Iterable, List, Sequence, Tuple
+import math
+from typing import Callable, Iterable, List, Optional, Sequence, Tuple
+
+from ..known_poses import InitPose
 
 OCCUPANCY_GRID_TYPE = 'nav_msgs/OccupancyGrid'
 
@@ -73,3 +76,22 @@ def robot_topics(robot: str, params) -> Tuple[str, str]:
 def init_pose_param_names(robot: str) -> List[str]:
     """§2.4: absolute names of the four init-pose parameters, in the order the original reads them."""
     return [append(append(robot, 'map_merge'), 'init_pose_' + k) for k in ('x', 'y', 'z', 'yaw')]
+
+
+def read_init_pose(robot: str, get_param: Callable[[str], object], warn: Callable[[str], None]) -> Optional[InitPose]:
+    """The robot's init pose from its map_merge/init_pose_* parameters (`get_param` raises KeyError when one is
+    missing), or None after one warning (`warn`) naming the first missing or non-numeric one."""
+    values = []
+    for pname in init_pose_param_names(robot):
+        try:
+            v = get_param(pname)
+        except KeyError:
+            v = None
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            warn(f"Couldn't get initial position for robot [{robot}]: parameter {pname} is "
+                 f"{'missing' if v is None else repr(v)}; did you define parameters "
+                 f"map_merge/init_pose_[xyz] and init_pose_yaw? Retrying at the next discovery.")
+            return None
+        values.append(float(v))
+    x, y, _z, yaw = values   # z is required (as the original) but unused
+    return InitPose(x, y, yaw)

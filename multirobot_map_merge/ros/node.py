@@ -15,22 +15,22 @@ Threads (rospy runs every subscriber on its own thread; callbacks only convert +
     and their maps are unchanged since the last estimation (same input, same placement). Each estimation first
     re-checks the robots placed by the last one against the union of the others (tracking: a placement is kept,
     refined, while it passes the acceptance rules, and dropped at once when it does not), then matches the robots
-    not placed against the union of the placed ones (estimation.py);
+    not placed against the union of the placed ones (estimation/);
   * merging: every 1/merging_rate s: the newest maps, the last estimated transforms (kept per robot name, so they
     follow the robot when the list grows), compose, publish (and ~status after a new estimation, so that its
     transforms match the merged map published with it).
-Locks: `_robots_lock` owns the robot list; each RobotMap has its own lock (copy-on-write grids); `_estimate_lock`
-owns the estimated transforms, the reference robot and the pending status. No lock is held while estimating or
-composing. Each pipeline has one owner thread.
-Timing: the loops are paced on ROS time, as the original's ros::Rate, so they follow /clock under use_sim_time.
-Until /clock has started (ROS time 0) they are paced on the wall clock; a jump back in ROS time starts a new period
-instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a stop request, so SIGINT ends the node
+Locks: robots.Robots owns the robot list (its lock; each RobotMap has its own); `_estimate_lock` owns the estimated
+transforms, the reference robot and the pending status. No lock is held while estimating or composing. Each
+pipeline has one owner thread.
+Timing (pacing.py, process.py): the loops are paced on ROS time, as the original's ros::Rate, so they follow /clock
+under use_sim_time. Until /clock has started (ROS time 0) they are paced on the wall clock; a jump back in ROS time
+starts a new period instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a stop request, so SIGINT ends the node
 within a fraction of a second: main() waits at most 0.5 s for a cycle still running (an estimation of many maps can
 take seconds) and exits without it, and a watchdog ends the process 1.6 s after the shutdown request whatever still
 runs. Rates are checked positive at start (no zero-period loop). An estimation that takes longer than half its
 period (many robots) is followed by a rest of half the (wall) time it took, so that estimation uses at most about
 two thirds of the node's time and merging keeps its rate; the correlation searches of one estimation stop after
-node_params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that match by descriptors join
+params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that match by descriptors join
 quickly. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
@@ -45,43 +45,34 @@ outside -1 and 0..100 are read as unknown, and a robot whose map or placement wo
 """
 from __future__ import annotations
 
-import copy
-import ctypes
-import ctypes.util
-import logging
-import math
-import os
 import threading
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import rospy
-from geometry_msgs.msg import Transform, TransformStamped
-from map_msgs.msg import OccupancyGridUpdate
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import OccupancyGrid
-from rospy.numpy_msg import numpy_msg
 
 from .. import transforms as tf
 from ..admission import describe_invalid
-from .discovery import append, init_pose_param_names, robot_map_topics, robot_topics
 from ..estimation.features import FeatureCache
-from ..grid import Grid, GridError
-from ..known_poses import InitPose
-from ..msg import MergeStatus, PairMatchStatus, RobotMergeStatus
-from .params import MapMergeParams
+from ..grid import Grid
+from ..msg import MergeStatus
 from ..pipeline import MergingPipeline
-from .robot_maps import RobotMap
-from .conversions import grid_from_msg, grid_to_msg, update_from_msg
 from ..throttle import Throttle
+from .conversions import center_origin, grid_to_msg, restamped, transform_msg
+from .pacing import LoopPacer
+from .params import MapMergeParams
+from .process import exit_now, limit_malloc_arenas, start_exit_watchdog
+from .robot_maps import same_inputs, same_merge_inputs
+from .robots import Robot, Robots
+from .status import fill_transforms, frame_of, status_of
 
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
 ESTIMATION_REST = 0.5   # an estimation that took b s (wall) is followed by a rest of b * this at least
-SLICE = 0.1             # s (wall) between two checks of the stop flag while a loop waits on simulated time
 EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
-HARD_EXIT = 1.6         # s (wall) after a shutdown request the process ends even if rospy's shutdown still runs
 
 
 def _params_doc() -> str:
@@ -92,133 +83,15 @@ def _params_doc() -> str:
 __doc__ = __doc__.format(params=_params_doc())
 
 
-class LoopPacer:
-    """Paces one loop at a rate in ROS time, as ros::Rate does (so it follows /clock under use_sim_time).
-
-    `wait()` returns when the period since `start_cycle()` has passed (and, with `rest_share`, at least that share
-    of the wall time the cycle's work took), or at once when the loop's `kick` event is set (a stop request, or the
-    estimation's wake-up). Under simulated time it waits on rospy's clock condition, which every /clock message
-    notifies, in slices of at most SLICE wall seconds; until /clock has started it paces on the wall clock; when
-    ROS time jumps back (bag loop, simulator reset) the period restarts instead of raising as rospy.Rate would.
-    """
-
-    def __init__(self, rate: float, kick: threading.Event, rest_share: float = 0.0) -> None:
-        if not (math.isfinite(rate) and rate > 0.0):
-            raise ValueError(f'loop rate {rate} is not a positive finite number')   # no zero-period loop
-        self.period = 1.0 / rate
-        self.kick = kick
-        self.rest_share = rest_share   # after a cycle that took b seconds, rest at least rest_share * b
-        self._ros0 = 0.0
-        self._wall0 = 0.0
-
-    def start_cycle(self) -> None:
-        self._ros0, self._wall0 = rospy.get_time(), time.monotonic()
-
-    def _elapsed(self) -> float:
-        """Seconds since start_cycle(): ROS time, or wall time while there is none; -1 if ROS time went back."""
-        now = rospy.get_time()
-        if self._ros0 > 0.0 and now > 0.0:
-            return now - self._ros0 if now >= self._ros0 else -1.0
-        return time.monotonic() - self._wall0   # no ROS time yet (sim time, /clock not started)
-
-    def wait(self) -> None:
-        cond = rospy.rostime.get_rostime_cond()
-        # the rest is in wall time: it keeps the CPU share down, whatever the simulated time's speed-up
-        rest_until = time.monotonic() + (time.monotonic() - self._wall0) * self.rest_share
-        while not self.kick.is_set():
-            elapsed = self._elapsed()
-            if elapsed < 0.0:
-                break   # ROS time moved backwards (bag loop, simulator reset): start a new period now
-            remaining = max(self.period - elapsed, rest_until - time.monotonic())
-            if remaining <= 0.0:
-                break
-            if rospy.rostime.is_wallclock():
-                self.kick.wait(min(remaining, 1.0))
-            else:
-                with cond:   # kick() notifies under the same lock: no wake-up is lost
-                    if not self.kick.is_set():
-                        cond.wait(SLICE)
-        self.kick.clear()
-
-    @staticmethod
-    def wake(event: threading.Event) -> None:
-        """Set a loop's kick event and wake it if it waits on simulated time."""
-        event.set()
-        cond = rospy.rostime.get_rostime_cond()
-        with cond:
-            cond.notify_all()
-
-
-@dataclass
-class Robot:
-    name: str                              # absolute namespace, e.g. /robot1 (or / for a root /map)
-    pose: Optional[InitPose]               # known_init_poses only
-    maps: RobotMap = field(default_factory=RobotMap)
-    subscribers: list = field(default_factory=list)
-
-
-def _transform_msg(m: np.ndarray) -> Transform:
-    x, y, yaw, _ = tf.params(m)
-    t = Transform()
-    t.translation.x, t.translation.y = x, y
-    t.rotation.z, t.rotation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
-    return t
-
-
-def center_origin(merged: Grid) -> Tuple[float, float, float]:
-    """The original's origin (§7.3 step 7): canvas centred on world_frame, resolution as float32 widened."""
-    res = float(np.float32(merged.resolution))
-    return (-(merged.width / 2.0) * res, -(merged.height / 2.0) * res, 0.0)
-
-
-def same_inputs(a: Tuple[List[str], List[Optional[Grid]]], b: Tuple[List[str], List[Optional[Grid]]]) -> bool:
-    """True if two (robot names, grids) snapshots hold the same robots with identical maps (content, geometry)."""
-    if a[0] != b[0]:
-        return False
-    for ga, gb in zip(a[1], b[1]):
-        if ga is gb:
-            continue
-        if ga is None or gb is None or ga.resolution != gb.resolution or ga.origin != gb.origin \
-                or not np.array_equal(ga.data, gb.data):
-            return False
-    return True
-
-
-def same_merge_inputs(a: tuple, b: tuple) -> bool:
-    """Two merge inputs (names, grids, transforms, reference) that compose to the same merged grid."""
-    if a[3] != b[3] or len(a[2]) != len(b[2]):
-        return False
-    for ta, tb in zip(a[2], b[2]):
-        if (ta is None) != (tb is None) or (ta is not None and not np.array_equal(ta, tb)):
-            return False
-    return same_inputs((a[0], a[1]), (b[0], b[1]))
-
-
-def restamped(msg: OccupancyGrid, stamp) -> OccupancyGrid:
-    """A fresh copy of a merged map message with a new stamp; the (never modified) data list is shared."""
-    out = OccupancyGrid()
-    out.header.frame_id = msg.header.frame_id
-    out.header.stamp = stamp
-    out.info = copy.deepcopy(msg.info)
-    out.info.map_load_time = stamp
-    out.data = msg.data
-    return out
-
-
-def frame_of(robot: str, grid: Optional[Grid]) -> str:
-    frame = grid.frame_id if grid is not None and grid.frame_id else append(robot, 'map')
-    return frame.lstrip('/')
-
-
 class MapMergeNode:
     def __init__(self, params: MapMergeParams) -> None:
         self.params = params
         self._stop = threading.Event()
         self._kicks: Dict[str, threading.Event] = {n: threading.Event() for n in ('discovery', 'merging', 'estimation')}
         self._throttle = Throttle(WARN_PERIOD)
-        self._robots_lock = threading.Lock()          # owns _robots (newest first, as the original) and _by_name
-        self._robots: List[Robot] = []
-        self._by_name: Dict[str, Robot] = {}
+        self.own_topic = rospy.resolve_name(params.merged_map_topic)
+        self._robots = Robots(params, self.own_topic, self._warn,
+                              on_first_map=lambda: LoopPacer.wake(self._kicks['estimation']))
         self._estimate_lock = threading.Lock()        # owns _transforms, _reference, _pending_status
         self._transforms: Dict[str, np.ndarray] = {}  # robot name -> metric transform map frame -> merged frame
         self._reference: Optional[str] = None
@@ -228,7 +101,6 @@ class MapMergeNode:
         self._estimated_inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None   # estimation thread only
         self._cache_capacity = 0                      # estimation thread only
         self._last_merge = None                       # merging thread only: (inputs, message, world_from_merged)
-        self.own_topic = rospy.resolve_name(params.merged_map_topic)
         self._map_pub = rospy.Publisher(params.merged_map_topic, OccupancyGrid, queue_size=50, latch=True)
         self._status_pub = rospy.Publisher('~status', MergeStatus, queue_size=1, latch=True)
         self._tf = None
@@ -244,7 +116,7 @@ class MapMergeNode:
     # ------------------------------------------------------------------ threads
     def start(self) -> List[threading.Thread]:
         rospy.on_shutdown(self.stop)
-        loops = [('discovery', self.discover, LoopPacer(self.params.discovery_rate, self._kicks['discovery'])),
+        loops = [('discovery', self._robots.discover, LoopPacer(self.params.discovery_rate, self._kicks['discovery'])),
                  ('merging', self.merge_once, LoopPacer(self.params.merging_rate, self._kicks['merging']))]
         if not self.params.known_init_poses:
             # an estimation of many maps can take longer than its period: rest half as long as it took, so that
@@ -281,103 +153,10 @@ class MapMergeNode:
                 break
             pacer.wait()
 
-    # ------------------------------------------------------------------ discovery (§3.2)
-    def discover(self) -> None:
-        rospy.logdebug('Robot discovery started.')
-        try:
-            topics = rospy.get_published_topics()
-        except Exception as e:   # master unreachable: try again next pass
-            self._warn('', 'master', f'cannot list published topics: {e}')
-            return
-        for name in robot_map_topics(topics, self.params, self.own_topic):
-            with self._robots_lock:
-                if name in self._by_name:
-                    continue
-            pose = None
-            if self.params.known_init_poses:
-                pose = self._read_init_pose(name)
-                if pose is None:
-                    continue   # not recorded: retried at the next pass, as the original
-            self._add_robot(name, pose)
-
-    def _read_init_pose(self, robot: str) -> Optional[InitPose]:
-        values = []
-        for pname in init_pose_param_names(robot):
-            try:
-                v = rospy.get_param(pname)
-            except KeyError:
-                v = None
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self._warn(robot, 'init_pose',
-                           f"Couldn't get initial position for robot [{robot}]: parameter {pname} is "
-                           f"{'missing' if v is None else repr(v)}; did you define parameters "
-                           f"map_merge/init_pose_[xyz] and init_pose_yaw? Retrying at the next discovery.")
-                return None
-            values.append(float(v))
-        x, y, _z, yaw = values   # z is required (as the original) but unused
-        return InitPose(x, y, yaw)
-
-    def _add_robot(self, name: str, pose: Optional[InitPose]) -> None:
-        rospy.loginfo('adding robot [%s] to system', name)
-        robot = Robot(name, pose)
-        map_topic, updates_topic = robot_topics(name, self.params)
-        rospy.loginfo('Subscribing to MAP topic: %s.', map_topic)
-        # numpy_msg: the int8[] data arrives as an ndarray (no per-cell Python ints); same type and md5 on the wire
-        robot.subscribers.append(rospy.Subscriber(map_topic, numpy_msg(OccupancyGrid), self._on_map,
-                                                  callback_args=robot, queue_size=50, buff_size=1 << 24))
-        rospy.loginfo('Subscribing to MAP updates topic: %s.', updates_topic)
-        robot.subscribers.append(rospy.Subscriber(updates_topic, numpy_msg(OccupancyGridUpdate), self._on_update,
-                                                  callback_args=robot, queue_size=50, buff_size=1 << 24))
-        with self._robots_lock:
-            self._robots.insert(0, robot)   # newest first, as the original
-            self._by_name[name] = robot
-
-    # ------------------------------------------------------------------ callbacks: convert + store only
-    def _on_map(self, msg: OccupancyGrid, robot: Robot) -> None:
-        rospy.logdebug('received full map update')
-        try:
-            self._store_map(msg, robot)
-        except Exception as e:   # no exception leaves a callback: a bug or bad input drops this message only
-            self._warn(robot.name, 'map', f'map dropped: {type(e).__name__}: {e}')
-
-    def _store_map(self, msg: OccupancyGrid, robot: Robot) -> None:
-        try:
-            grid = grid_from_msg(msg)
-        except GridError as e:
-            self._warn(robot.name, 'map', f'malformed map refused: {e}')
-            return
-        if 'tilted_origin' in grid.extra:
-            self._warn(robot.name, 'tilt', 'map origin orientation (%g, %g, %g, %g) is not a pure yaw; roll/pitch '
-                                           'ignored' % grid.extra['tilted_origin'])
-        first = robot.maps.snapshot() is None
-        if not robot.maps.set_full(grid):
-            rospy.logdebug('map_merge: robot [%s]: out-of-order older map dropped', robot.name)
-        elif first:
-            LoopPacer.wake(self._kicks['estimation'])   # estimate at once instead of up to 1/estimation_rate later
-
-    def _on_update(self, msg: OccupancyGridUpdate, robot: Robot) -> None:
-        rospy.logdebug('received partial map update')
-        try:
-            update = update_from_msg(msg)
-            result = robot.maps.apply_update(update)
-        except GridError as e:
-            self._warn(robot.name, 'update', f'malformed map update refused: {e}')
-            return
-        except Exception as e:   # no exception leaves a callback
-            self._warn(robot.name, 'update', f'map update dropped: {type(e).__name__}: {e}')
-            return
-        if result.reason:
-            self._warn(robot.name, 'update', ('' if result.applied else 'map update refused: ') + result.reason)
-
     # ------------------------------------------------------------------ estimation (§9)
-    def _snapshot(self) -> Tuple[List[Robot], List[Optional[Grid]]]:
-        with self._robots_lock:
-            robots = list(self._robots)
-        return robots, [r.maps.snapshot() for r in robots]
-
     def estimate_once(self) -> None:
         rospy.logdebug('Grid pose estimation started.')
-        robots, grids = self._snapshot()
+        robots, grids = self._robots.snapshot()
         names = [r.name for r in robots]
         if self._estimated_inputs is not None and same_inputs(self._estimated_inputs, (names, grids)):
             # the same maps give the same placement: keep it (static maps, e.g. map_server, cost no CPU)
@@ -406,26 +185,11 @@ class MapMergeNode:
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
         self._estimated_inputs = (names, grids)
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
-        status = self._status_of(robots, grids, result)
+        status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:
             self._transforms = transforms
             self._reference = names[result.reference] if result.reference is not None else None
             self._pending_status = status   # sent by the next merge cycle, with that cycle's placement
-
-    def _status_of(self, robots: List[Robot], grids, result) -> Tuple[MergeStatus, List[Optional[np.ndarray]]]:
-        """A fresh MergeStatus (robot transforms still to fill in) and the estimated transform of each entry."""
-        status = MergeStatus()   # fresh message each time (latched)
-        status.header.frame_id = self.params.world_frame
-        status.estimation_time = float(result.seconds)
-        for robot, grid, t in zip(robots, grids, result.transforms):
-            status.robots.append(RobotMergeStatus(robot_namespace=robot.name, map_frame=frame_of(robot.name, grid),
-                                                  included=t is not None))
-        for p in result.pairs:
-            used = bool(p.accepted) and result.transforms[p.i] is not None and result.transforms[p.j] is not None
-            status.pairs.append(PairMatchStatus(robot_a=robots[p.i].name, robot_b=robots[p.j].name,
-                                                matches=int(p.matches), inliers=int(p.inliers),
-                                                confidence=float(p.confidence), used=used))
-        return status, list(result.transforms)
 
     def _publish_status(self, world_from_merged: np.ndarray, stamp) -> None:
         with self._estimate_lock:
@@ -433,18 +197,13 @@ class MapMergeNode:
         if pending is None:
             return
         status, transforms = pending
-        status.header.stamp = stamp
-        for entry, t in zip(status.robots, transforms):
-            if t is not None:
-                entry.transform = _transform_msg(world_from_merged @ t)
-            else:
-                entry.transform.rotation.w = 1.0   # identity, not an all-zero quaternion
+        fill_transforms(status, transforms, world_from_merged, stamp)
         self._status_pub.publish(status)
 
     # ------------------------------------------------------------------ merging (§6)
     def merge_once(self) -> None:
         rospy.logdebug('Map merging started.')
-        robots, grids = self._snapshot()
+        robots, grids = self._robots.snapshot()
         pipeline = self._merge_pipeline
         pipeline.feed(grids, matching=False)   # transforms come from the estimation or known poses
         self._warn_admission(robots, pipeline)
@@ -502,44 +261,16 @@ class MapMergeNode:
             msg.header.stamp = now
             msg.header.frame_id = self.params.world_frame
             msg.child_frame_id = frame_of(robot.name, grid)
-            msg.transform = _transform_msg(world_from_merged @ t)
+            msg.transform = transform_msg(world_from_merged @ t)
             out.append(msg)
         if out:
             self._tf.sendTransform(out)
 
 
-def limit_malloc_arenas() -> None:
-    """glibc gives each thread (rospy runs one per connection) its own malloc arena, and after a large block is
-    freed it serves blocks up to that size from the arenas instead of mmap: freed numpy arrays of a long run then
-    stay resident. Two arenas and a fixed 128 KiB mmap threshold keep RSS flat (measured: 640 -> 260 MiB after
-    4 minutes with 30 live robots). No-op where libc has no mallopt."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6')
-        m_trim_threshold, m_mmap_threshold, m_arena_max = -1, -3, -8   # glibc's malloc.h
-        libc.mallopt(m_arena_max, 2)
-        libc.mallopt(m_mmap_threshold, 128 * 1024)
-        libc.mallopt(m_trim_threshold, 128 * 1024)
-    except (OSError, AttributeError):
-        pass
-
-
-def _exit_now() -> None:
-    logging.shutdown()   # flush the log files
-    os._exit(0)
-
-
-def _start_exit_watchdog() -> None:
-    """rospy's shutdown unregisters every topic from the master and joins its threads (up to 5 s each): with many
-    robots on a loaded machine that alone can approach 2 s. The issue wants the node gone within 2 s of SIGINT."""
-    timer = threading.Timer(HARD_EXIT, _exit_now)
-    timer.daemon = True
-    timer.start()
-
-
 def main() -> None:
     limit_malloc_arenas()   # first: arenas are created by the threads started from here on
     rospy.init_node('map_merge')
-    rospy.on_shutdown(_start_exit_watchdog)   # the first shutdown hook: runs before rospy's own clean-up
+    rospy.on_shutdown(start_exit_watchdog)   # the first shutdown hook: runs before rospy's own clean-up
     params = MapMergeParams.read(rospy.get_param, '~', warn=rospy.logwarn)
     rospy.loginfo('map_merge: %s', params)
     node = MapMergeNode(params)
@@ -553,4 +284,4 @@ def main() -> None:
     if busy:
         # a long estimation cannot be interrupted, and its worker pool would be joined at interpreter exit
         rospy.loginfo('map_merge: exiting without waiting for the running %s cycle', ', '.join(busy))
-        _exit_now()
+        exit_now()

@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from ..grid import MAX_CELLS
 from ..estimation.settings import EstimationSettings
+from ..grid import MAX_CELLS
 
 ORIGIN_MODES = ('center', 'world')
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Optional
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -86,3 +86,26 @@ class RobotMap:
             return UpdateResult(True, f'update {w} x {h} at x {x}, y {y} does not fully fit into the {gw} x {gh} '
                                       f'map; only {cw} x {ch} cells copied')
         return UpdateResult(True)
+
+
+def same_inputs(a: Tuple[List[str], List[Optional[Grid]]], b: Tuple[List[str], List[Optional[Grid]]]) -> bool:
+    """True if two (robot names, grids) snapshots hold the same robots with identical maps (content, geometry)."""
+    if a[0] != b[0]:
+        return False
+    for ga, gb in zip(a[1], b[1]):
+        if ga is gb:
+            continue
+        if ga is None or gb is None or ga.resolution != gb.resolution or ga.origin != gb.origin \
+                or not np.array_equal(ga.data, gb.data):
+            return False
+    return True
+
+
+def same_merge_inputs(a: tuple, b: tuple) -> bool:
+    """Two merge inputs (names, grids, transforms, reference) that compose to the same merged grid."""
+    if a[3] != b[3] or len(a[2]) != len(b[2]):
+        return False
+    for ta, tb in zip(a[2], b[2]):
+        if (ta is None) != (tb is None) or (ta is not None and not np.array_equal(ta, tb)):
+            return False
+    return same_inputs((a[0], a[1]), (b[0], b[1]))
