@@ -42,20 +42,25 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
     model = start.copy()
     if len(src) < 10 or len(pj.walls) < 10:
         return model
+    h, w = pj.work.shape
     # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
     for radius in s.icp_radii:
         for _ in range(s.icp_iterations):
             moved = tf.apply(model, src)
-            nn, dist = pj.nearest(moved)
-            close = dist < radius
-            if s.facing and close.any():
+            # the nearest wall of j (pj.nearest, inlined: ICP is the estimation's inner loop)
+            x, y = np.rint(moved).astype(np.int64).T
+            pick = np.flatnonzero((x >= 0) & (y >= 0) & (x < w) & (y < h))
+            wall = pj.nearest_wall[y[pick], x[pick]]
+            nn = pj.walls[wall]
+            close = ((nn - moved[pick]) ** 2).sum(axis=1) < radius * radius
+            pick, wall, nn = pick[close], wall[close], nn[close]
+            if s.facing and len(pick):
                 # a wall's two faces are not the same wall: pair only walls seen from the same side
-                turned = src_side[close] @ model[:2, :2].T
-                far_side = pj.free_side[nn[close, 1].astype(np.int64), nn[close, 0].astype(np.int64)]
-                close[np.flatnonzero(close)[opposed(turned, far_side)]] = False
-            if close.sum() < 10:
+                same_side = ~opposed(src_side[pick] @ model[:2, :2].T, pj.wall_normals[wall])
+                pick, nn = pick[same_side], nn[same_side]
+            if len(pick) < 10:
                 return model
-            step = tf.kabsch(moved[close], nn[close])
+            step = tf.kabsch(moved[pick], nn)
             model = step @ model
             if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
                 break

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid, free_side_field, opposed
+from .features import PreparedGrid, opposed
 from .precision import corner_error
 from .validation import must_be_positive, must_not_be_negative
 
@@ -70,6 +70,15 @@ class Placement:
         return self.support - conflict_weight * self.conflicts
 
 
+def source_pixels(pi: PreparedGrid, model: np.ndarray, xs: np.ndarray, ys: np.ndarray):
+    """(x, y, inside): the pixels of grid i that `model` (i -> j) puts at pixels (xs, ys) of grid j, clipped to
+    grid i, and whether they were inside it."""
+    back = np.rint(tf.apply(tf.inverse(model), np.column_stack([xs, ys]))).astype(np.int64)
+    h, w = pi.work.shape
+    inside = (back[:, 0] >= 0) & (back[:, 1] >= 0) & (back[:, 0] < w) & (back[:, 1] < h)
+    return np.clip(back[:, 0], 0, w - 1), np.clip(back[:, 1], 0, h - 1), inside
+
+
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
     """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j.
 
@@ -107,7 +116,10 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         # only at the agreeing walls: the side fields are costly over the whole area
         rows, cols = np.nonzero(agree_i | agree_j)
         weight = agree_i[rows, cols].astype(np.int64) + agree_j[rows, cols]
-        side_i = free_side_field(wi)[rows, cols]
+        # i's free side there: looked up in i's own field through the inverse placement and turned with it (the
+        # same as the field of the warped grid, without computing one over the whole common area)
+        x, y, _ = source_pixels(pi, model, cols + c0, rows + r0)
+        side_i = pi.free_side[y, x] @ model[:2, :2].T
         faces = opposed(side_i, pj.free_side[rows + r0, cols + c0])
         neutral = int(weight[faces].sum())
         support -= neutral
@@ -118,10 +130,8 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     rows, cols = np.nonzero(walls_j & ~near_i)
     if rows.size:
         # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
-        back = np.rint(tf.apply(tf.inverse(model), np.column_stack([cols + c0, rows + r0]))).astype(np.int64)
-        hi, wi_ = pi.work.shape
-        inside = (back[:, 0] >= 0) & (back[:, 1] >= 0) & (back[:, 0] < wi_) & (back[:, 1] < hi)
-        depth.append(pi.known_depth[back[inside, 1], back[inside, 0]])
+        x, y, inside = source_pixels(pi, model, cols + c0, rows + r0)
+        depth.append(pi.known_depth[y[inside], x[inside]])
     depth = np.concatenate(depth)
     result.deep_conflicts = int((depth > s.deep_conflict_m / pi.resolution).sum())
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
