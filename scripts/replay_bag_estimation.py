@@ -9,7 +9,8 @@ writes it. The robots' maps are rebuilt message by message (full maps and update
 maps of that moment, with the previous placements, the reference and the memory of the last one, as the node's. It
 prints, per estimation: the time, the robots placed (tracked ones marked), the seconds taken, the robots the node
 had placed then, and why each robot left out was refused. With the demo's summary.json, each robot's joinable time
-is printed too, so that the reason for a late join shows.
+is printed too, so that the reason for a late join shows, and the worst placement error against the ground truth
+(its start poses) of each estimation.
 """
 from __future__ import annotations
 
@@ -22,15 +23,32 @@ from typing import Dict, List, Optional
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
+import numpy as np  # noqa: E402
+
+from explore.coverage import placement_errors  # noqa: E402
+from multirobot_map_merge import transforms as tf  # noqa: E402
+from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.pipeline import MergingPipeline  # noqa: E402
-from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
 from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
-from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
+from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
 
 
 def robot_of(topic: str) -> str:
     return topic.rsplit('/', 1)[0]
+
+
+def worst_error(transforms: Dict[str, np.ndarray], reference: Optional[str], starts: Dict[str, tuple],
+                grids: Dict[str, object]) -> str:
+    """'; worst robot R: D deg, C cm' against the true start poses (relative to the reference), or ''."""
+    order = sorted(transforms, key=lambda n: n != reference)   # the reference first: errors are relative to it
+    estimated = {n: tuple(tf.params(transforms[n])[:3]) for n in order}
+    rows = placement_errors(estimated, starts, grids)
+    if len(rows) < 2:
+        return ''
+    worst = max(rows, key=lambda r: r['corner_error_m'])
+    return (f"; worst {worst['robot']}: {worst['rotation_error_deg']:.2f} deg, "
+            f"{100 * worst['corner_error_m']:.1f} cm")
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -46,9 +64,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f'replay_bag_estimation: cannot read {args.bag}: {e}', file=sys.stderr)
         return 2
     joinable: Dict[str, float] = {}
+    starts: Dict[str, tuple] = {}
     if args.summary:
-        for row in json.load(open(args.summary)).get('placement', []):
+        summary = json.load(open(args.summary))
+        for row in summary.get('placement', []):
             joinable['/' + row['robot'].strip('/')] = row.get('joinable_sim_s')
+        starts = {'/' + n.strip('/'): tuple(p) for n, p in summary.get('start_poses', {}).items()}
     maps: Dict[str, RobotMap] = {}
     order: List[str] = []   # newest first, as the node
     pipeline = MergingPipeline(EstimationSettings())
@@ -94,7 +115,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         reference = names[result.reference] if result.reference is not None else None
         placed = sorted(transforms)
         line = (f't {now:7.1f}  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'
-                + (f'; node had {len(node_placed)}' if node_placed is not None else ''))
+                + (f'; node had {len(node_placed)}' if node_placed is not None else '')
+                + worst_error(transforms, reference, starts, dict(zip(names, grids))))
         print(line)
         for p in result.pairs:
             n = names[p.i]
