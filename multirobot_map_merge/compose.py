@@ -47,10 +47,11 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
-    of the first placed grid; when that leaves grids out and more placed grids share another resolution, that one) and its origin is the
-    corner of the smallest canvas holding every known cell. Returns None when no grid with a known cell is placed.
-    A grid whose placement is not finite, or that would make the merged grid larger than `max_cells` (at most
-    MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and the reason.
+    of the first placed grid; when that leaves grids out and more placed grids share another resolution, that one)
+    and its origin is the corner of the smallest canvas holding every known cell. Returns None when no grid with a
+    known cell is placed. A grid whose placement is not finite, or that would make the merged grid larger than
+    `max_cells` (at most MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and
+    the reason.
     GridError only for a bad `resolution` argument.
     """
     placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))

@@ -4,9 +4,9 @@ Robot map frames do not move (SLAM keeps its origin), so a right placement stays
 estimation re-checks every previous placement against the union of the other placed grids near it: ICP from the
 old placement (kept only if it fits better) and the polish, then the same acceptance rules as a new match (the
 refined placement if it passes, else the old one if that still passes). A placement that fails is dropped in that
-same estimation and its grid goes back to the search; the thesis (§4.5) shows why a kept placement must never outlive its evidence. A wrong map makes its
-neighbours contradict too, so when several fail, the one that agrees least is dropped and the others are checked
-again without it (at most MAX_PASSES rounds).
+same estimation and its grid goes back to the search; the thesis (§4.5) shows why a kept placement must never
+outlive its evidence. A wrong map makes its neighbours contradict too, so when several fail, the one that agrees
+least is dropped and the others are checked again without it (at most MAX_PASSES rounds).
 """
 from __future__ import annotations
 

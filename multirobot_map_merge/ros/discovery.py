@@ -1,4 +1,5 @@
-"""Robot discovery (map_merge.md §3), pure: init poses from parameters, roscpp's name helpers and the robot-map-topic filter.
+"""Robot discovery (map_merge.md §3), pure: roscpp's name helpers, the robot-map-topic filter, init poses read
+from parameters.
 
 roscpp's names::clean/append/parentNamespace are reproduced exactly; rospy's own helpers differ (e.g.
 rospy.names.namespace('/robot1/map') == '/robot1/', with a trailing slash), so they must not be used here.

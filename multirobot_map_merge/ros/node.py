@@ -24,14 +24,14 @@ transforms, the reference robot and the pending status. No lock is held while es
 pipeline has one owner thread.
 Timing (pacing.py, process.py): the loops are paced on ROS time, as the original's ros::Rate, so they follow /clock
 under use_sim_time. Until /clock has started (ROS time 0) they are paced on the wall clock; a jump back in ROS time
-starts a new period instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a stop request, so SIGINT ends the node
-within a fraction of a second: main() waits at most 0.5 s for a cycle still running (an estimation of many maps can
-take seconds) and exits without it, and a watchdog ends the process 1.6 s after the shutdown request whatever still
-runs. Rates are checked positive at start (no zero-period loop). An estimation that takes longer than half its
-period (many robots) is followed by a rest of half the (wall) time it took, so that estimation uses at most about
-two thirds of the node's time and merging keeps its rate; the correlation searches of one estimation stop after
-params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that match by descriptors join
-quickly. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
+starts a new period instead of raising. They wait in slices of at most 0.1 s (wall) and wake on a stop request, so
+SIGINT ends the node within a fraction of a second: main() waits at most 0.5 s for a cycle still running (an
+estimation of many maps can take seconds) and exits without it, and a watchdog ends the process 1.6 s after the
+shutdown request whatever still runs. Rates are checked positive at start (no zero-period loop). An estimation that
+takes longer than half its period (many robots) is followed by a rest of half the (wall) time it took, so that
+estimation uses at most about two thirds of the node's time and merging keeps its rate; the correlation searches of
+one estimation stop after params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that
+match by descriptors join quickly. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming
