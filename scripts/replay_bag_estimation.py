@@ -27,10 +27,10 @@ import numpy as np  # noqa: E402
 
 from explore.coverage import placement_errors  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
-from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.pipeline import MergingPipeline  # noqa: E402
 from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
+from multirobot_map_merge.ros.params import MapMergeParams  # noqa: E402
 from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
 
 
@@ -72,7 +72,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         starts = {'/' + n.strip('/'): tuple(p) for n, p in summary.get('start_poses', {}).items()}
     maps: Dict[str, RobotMap] = {}
     order: List[str] = []   # newest first, as the node
-    pipeline = MergingPipeline(EstimationSettings())
+    pipeline = MergingPipeline(MapMergeParams().estimation_settings())   # the node's defaults
     transforms: Dict[str, object] = {}
     reference: Optional[str] = None
     next_at = None
