@@ -27,14 +27,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from multirobot_map_merge import transforms as tf  # noqa: E402
-from multirobot_map_merge.estimation.features import PreparedGrid, opposed, prepare  # noqa: E402
-from multirobot_map_merge.mapio import load_map  # noqa: E402
 from multirobot_map_merge.estimation.estimator import estimate  # noqa: E402
+from multirobot_map_merge.estimation.features import PreparedGrid, opposed, prepare  # noqa: E402
 from multirobot_map_merge.estimation.pair import find_rival  # noqa: E402
-from multirobot_map_merge.estimation.verify import verify  # noqa: E402
 from multirobot_map_merge.estimation.polish import descend  # noqa: E402
 from multirobot_map_merge.estimation.precision import corner_error  # noqa: E402
 from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
+from multirobot_map_merge.estimation.verify import verify  # noqa: E402
+from multirobot_map_merge.mapio import load_map  # noqa: E402
 
 NEAR = 3.0      # pixels: a wall this close to the other's wall counts, smoothly less with distance
 FRINGE = 1.5    # pixels: a wall this close to the other's unknown area contradicts nothing

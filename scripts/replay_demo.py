@@ -18,8 +18,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'
 from explore.coverage import known_corners, placement_errors  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
 from multirobot_map_merge.estimation.estimator import estimate  # noqa: E402
-from multirobot_map_merge.mapio import load_map  # noqa: E402
 from multirobot_map_merge.estimation.settings import EstimationSettings  # noqa: E402
+from multirobot_map_merge.mapio import load_map  # noqa: E402
 
 
 def settings_from(args):

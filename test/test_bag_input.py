@@ -12,9 +12,9 @@ import genpy  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from multirobot_map_merge import transforms as tf  # noqa: E402
-from multirobot_map_merge.ros.bag_input import BagError, find_robots, read_bag_maps  # noqa: E402
 from multirobot_map_merge.grid import Grid  # noqa: E402
 from multirobot_map_merge.mapio import load_map  # noqa: E402
+from multirobot_map_merge.ros.bag_input import BagError, find_robots, read_bag_maps  # noqa: E402
 from multirobot_map_merge.ros.conversions import GridUpdate, grid_to_msg, update_to_msg  # noqa: E402
 
 T0 = 1000.0

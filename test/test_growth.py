@@ -9,10 +9,10 @@ import pytest
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation.estimator import estimate
 from multirobot_map_merge.estimation.features import map_keypoints, pooled_keypoints, prepare
-from multirobot_map_merge.grid import Grid
-from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.pair import match_pair
 from multirobot_map_merge.estimation.settings import EstimationSettings
+from multirobot_map_merge.grid import Grid
+from multirobot_map_merge.mapio import load_map
 
 
 def _sample(repo_root, name):

@@ -18,8 +18,8 @@ from multirobot_map_merge.admission import admit, clean_cells
 from multirobot_map_merge.compose import compose, select_parts
 from multirobot_map_merge.grid import MAX_CELLS, Grid, GridError
 from multirobot_map_merge.pipeline import MergingPipeline
-from multirobot_map_merge.ros.robot_maps import RobotMap
 from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg
+from multirobot_map_merge.ros.robot_maps import RobotMap
 
 SEED = int(os.environ.get('HOSTILE_SEED', np.random.SeedSequence().entropy % (1 << 32)))
 ROUNDS = 300

@@ -12,11 +12,11 @@ import pytest
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.cli import main as merge_maps
 from multirobot_map_merge.compose import compose
+from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.known_poses import InitPose
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline
-from multirobot_map_merge.estimation.settings import EstimationSettings
 
 from test_merging_pipeline import placement_error, scenario
 

@@ -3,8 +3,8 @@ import io
 import re
 import time
 
-from multirobot_map_merge.progress import TerminalProgress, attach, no_progress, progress_of
 from multirobot_map_merge.estimation.settings import EstimationSettings
+from multirobot_map_merge.progress import TerminalProgress, attach, no_progress, progress_of
 
 
 class FakeClock:

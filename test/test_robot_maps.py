@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from multirobot_map_merge.grid import Grid
-from multirobot_map_merge.ros.robot_maps import RobotMap
 from multirobot_map_merge.ros.conversions import GridUpdate
+from multirobot_map_merge.ros.robot_maps import RobotMap
 
 
 def grid(w=5, h=4, value=-1, stamp=1.0):

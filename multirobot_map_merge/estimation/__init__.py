@@ -1,6 +1,7 @@
 """Estimation: where each robot's map lies in the merged map, without known initial poses.
 
-The stages, in the order a map goes through them (each module holds its settings, composed in settings.py):
+The stages, in the order a map goes through them (a stage's settings are declared in its module; settings.py
+composes them into the one EstimationSettings):
   features.py    prepare a grid: crop, resample to the working resolution, walls, distance fields, keypoints
   hypotheses.py  candidate screen: descriptor matches, rigid RANSAC hypotheses, a cheap wall-agreement screen
   search.py      correlation search: candidates where descriptors found none (small or featureless overlaps)
