@@ -31,8 +31,9 @@ class Robot:
     subscribers: list = field(default_factory=list)
 
 
-
 class Robots:
+    """The discovered robots, newest first, with their subscriptions and stored maps."""
+
     def __init__(self, params: MapMergeParams, own_topic: str, warn: Callable[[str, str, str], None],
                  on_first_map: Callable[[], None]) -> None:
         self._params = params
@@ -47,7 +48,6 @@ class Robots:
         with self._lock:
             robots = list(self._robots)
         return robots, [r.maps.snapshot() for r in robots]
-
 
     # ------------------------------------------------------------------ discovery (§3.2)
     def discover(self) -> None:
