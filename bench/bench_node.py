@@ -36,7 +36,6 @@ import os
 import signal
 import socket
 import statistics
-import struct
 import subprocess
 import sys
 import threading
@@ -266,15 +265,12 @@ def run(args: argparse.Namespace) -> dict:
         from multirobot_map_merge.msg import MergeStatus
         rospy.init_node('bench_node_probe', disable_signals=True)
         merged_times: List[float] = []
-        merged_stamps: List[float] = []
         statuses: List[dict] = []
         lock = threading.Lock()
 
         def on_merged(msg) -> None:
-            secs, nsecs = struct.unpack_from('<II', msg._buff, 4)   # header: seq, stamp.secs, stamp.nsecs
             with lock:
                 merged_times.append(time.monotonic())
-                merged_stamps.append(secs + 1e-9 * nsecs)
 
         def on_status(msg) -> None:
             with lock:
@@ -315,7 +311,7 @@ def run(args: argparse.Namespace) -> dict:
         exit_s = stop(node, timeout=20.0)
         procs.pop('node')
         with lock:
-            times, stamps, sts = list(merged_times), list(merged_stamps), list(statuses)
+            times, sts = list(merged_times), list(statuses)
     finally:
         for name in ('node', 'robots', 'roscore'):
             stop(procs.get(name))

@@ -50,11 +50,11 @@ def translation_table(probability_map: bool = False, free_threshold: int = 25,
                       occupied_threshold: int = 65, by_threshold: bool = False) -> np.ndarray:
     """The 256-entry occupancy (reinterpreted as uint8) → cost table.
 
-    Default: the original's table — 0 → 0, 1..98 → 1 + floor(251·(i−1)/97), 99 → 253, 100 → 254, 255 (−1) → 255 and
-    the same formula modulo 256 for the invalid values 101..254 (explore.md §4.2).
+    Default: the original's table — 0 → 0, 1..98 → 1 + floor(251·(i−1)/97), 99 → 253, 100 → 254, 255 (−1) → 255
+    and the same formula modulo 256 for the invalid values 101..254 (explore.md §4.2).
 
-    ``probability_map``: occupancies 0..free_threshold → FREE_SPACE, occupied_threshold..100 → LETHAL_OBSTACLE and the
-    values strictly between → NO_INFORMATION (uncertain cells are treated as not yet explored, like map_server's
+    ``probability_map``: occupancies 0..free_threshold → FREE_SPACE, occupied_threshold..100 → LETHAL_OBSTACLE and
+    the values strictly between → NO_INFORMATION (uncertain cells are treated as not yet explored, like map_server's
     trinary mode), so maps whose free cells are not exactly 0 (Cartographer) still have frontiers. A ternary map
     (−1/0/100) translates to the same costs either way. Invalid values keep the original's entries.
 

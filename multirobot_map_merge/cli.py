@@ -62,8 +62,9 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                     help='with --bag: last name component of the robot map topics (default map; updates on '
                          'NAME_updates)')
     ap.add_argument('--confidence', type=float, default=defaults.confidence,
-                    help='confidence inliers / (8 + 0.3 matches) a pair needs, counted on verified wall correspondences '
-                         '(default %(default)s as the C++ node; up to about 3.3 asks for more agreement)')
+                    help='confidence inliers / (8 + 0.3 matches) a pair needs, counted on verified wall '
+                         'correspondences (default %(default)s as the C++ node; up to about 3.3 asks for more '
+                         'agreement)')
     ap.add_argument('--feature', default=defaults.feature, choices=FEATURE_TYPES,
                     help='keypoint detector (default %(default)s)')
     ap.add_argument('--known-poses', metavar='POSES.yaml', help='merge at known initial poses instead of estimating')

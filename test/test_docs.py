@@ -37,7 +37,7 @@ def test_parameter_tables_in_the_docs_are_generated(node):
     text = page.read_text()
     assert module.replace_table(text, node) == text, \
         f'{page.name}: parameter table out of date: run scripts/env.sh python scripts/param_table.py --write'
-    assert text.count(f'| `~') >= 10
+    assert text.count('| `~') >= 10
 
 
 @pytest.mark.parametrize('page', PAGES, ids=[p.name for p in PAGES])

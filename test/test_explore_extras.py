@@ -110,7 +110,6 @@ def test_explored_share_places_maps_by_their_pose(yaw):
     reach = reachable_mask(world, [(2.5, 3.5)])
     # a robot map covering the left half of the left room, in a frame at world pose (2.0, 3.0, yaw)
     known = np.zeros((38, 14), np.int8)
-    c, s = math.cos(yaw), math.sin(yaw)
     # the map's grid origin, expressed in its own frame, puts its cells on world cells (1..14, 1..38)
     ox, oy = 0.1, 0.1
     grid = Grid(known if yaw == 0.0 else known.T.copy(), 0.1,

@@ -251,7 +251,6 @@ def test_cancel_stops_the_robot(world):
 
 def test_stuck_robot_aborts(world, monkeypatch):
     sim = sim_with(world, [{'x': 3.0, 'y': 6.1, 'yaw': 0.0}], stuck_timeout=1.0)
-    r = sim.robots[0]
     assert sim.set_goal(0, 4.0, 0.0) is None
     # an invisible obstacle: every move is refused (as a wall the laser cannot see would)
     monkeypatch.setattr(sim.clearance, 'free', lambda x, y, radius: False)
