@@ -79,14 +79,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
             kept, checks = track(previous, preferred_reference, usable, prepared, res, settings, pool,
                                  grower.memory, grower.names)
             if kept:
-                first = grower.group(preferred_reference)
-                by_grid = {c.k: c for c in checks}
-                for k, t in kept.items():
-                    if k != preferred_reference:
-                        first.union.add(k, usable[k], prepared[k], t)
-                        first.links[k] = by_grid[k].match
-                groups.append(first)
-                grower._settle(len(first.members))
+                groups.append(grower.tracked_group(preferred_reference, kept, checks))
         tracked = len(groups[0].members) - 1 if groups else 0
         placed = {k for g in groups for k in g.members}
         unplaced = sorted((k for k in present if k not in placed), key=lambda k: -prepared[k].known_pixels)
@@ -101,7 +94,6 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
                     break
             seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
             unplaced.remove(seed)
-            grower._settle(1)
             group = grower.group(seed)
             grower.grow(group, unplaced)
             groups.append(group)

@@ -97,7 +97,21 @@ class Grower:
         return points, descriptors
 
     def group(self, seed: int) -> Group:
+        """A new group of the seed alone (the seed counts as settled)."""
+        self._settle(1)
         return Group(seed, self.grids[seed], self.prepared[seed], self.res, self.keypoints_of)
+
+    def tracked_group(self, reference: int, kept: Dict[int, np.ndarray], checks: Sequence) -> Group:
+        """The group of the placements tracking kept (grid -> transform in the reference's frame), each linked by
+        its check's match."""
+        group = self.group(reference)
+        by_grid = {c.k: c for c in checks}
+        for k, t in kept.items():
+            if k != reference:
+                group.union.add(k, self.grids[k], self.prepared[k], t)
+                group.links[k] = by_grid[k].match
+        self._settle(len(group.members) - 1)
+        return group
 
     def match(self, k: int, group: Group, search: bool) -> PairMatch:
         """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
