@@ -5,7 +5,7 @@
 
 OUT_DIR (default out/demo) is what `make demo` or the demo rostest (with MMM_KEEP_TEST_OUTPUT=1) wrote: the robots'
 final maps in robots/*.yaml and their true start poses in summary.json. The maps are merged with the estimation
-settings (EstimationSettings fields, e.g. polish_below_support=0), and each robot's placement error, and each pair's, is
+settings (EstimationSettings fields, e.g. polish=False), and each robot's placement error, and each pair's, is
 printed against the truth (relative to the first robot, as the demo's summary).
 """
 import json

@@ -146,9 +146,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # only worth the extra work for a placement that could be accepted
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
     candidates.sort(key=rank, reverse=True)
-    if plausible(candidates[0], s) and (candidates[0].support < s.polish_below_support
-                                        or candidates[0].overlap_m2 < s.polish_below_overlap_m2):
-        # ICP is precise on a large common area (there the polish measured worse), not always on a small one; the
+    if s.polish and plausible(candidates[0], s):
+        # ICP can settle in a nearby minimum, a degree off on a small common area and even on a large one; the
         # other plausible estimates of the same place are polished too, and the most consistent result is kept
         same = [c.transform for c in candidates[1:] if plausible(c, s)
                 and not distinct(c.transform, candidates[0].transform, pi, s)][:POLISH_STARTS - 1]

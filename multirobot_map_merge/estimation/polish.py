@@ -8,8 +8,11 @@ grid i on grid j moves in shrinking steps of rotation and translation while this
     and would have seen them), of min(distance to the other's nearest wall, TAU)^2
 
 Both directions count, so neither grid's extra walls bias the result; walls at the edge of the other's known area
-(the ends of its beams) and beyond it say nothing and are left out. The cost only ranks nearby placements:
-acceptance stays with the matcher's verification.
+(the ends of its beams) and beyond it say nothing and are left out. The distance is interpolated between pixels:
+read at the nearest pixel, the cost is flat in steps and the search stopped in a step's corner, up to half a degree
+off on a small common area. Each placement is also tried turned by START_TURN either way, since the cost of a small
+common area has nearby minima; the lowest wins. The cost only ranks nearby placements: acceptance stays with the
+matcher's verification.
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ import numpy as np
 from .. import transforms as tf
 from .features import PreparedGrid
 
-TAU = 3.0            # pixels: a wall further than this from the other's walls costs the same however far
+TAU = 5.0            # pixels: a wall further than this from the other's walls costs the same however far
 FRINGE = 1.5         # pixels: walls this close to the other's unknown area are left out (ends of its beams)
 MIN_POINTS = 20      # walls needed on the common area for the cost to mean anything
 MAX_POINTS = 3000    # walls sampled per grid
@@ -29,6 +32,7 @@ FIRST_STEPS = (math.radians(0.5), 1.0)   # rotation (rad) and translation (pixel
 LAST_STEP = 0.1      # pixels: stop when the translation step shrinks below this
 MAX_MOVES = 80
 MARGIN = 10          # pixels around the other grid within which walls are sampled
+START_TURN = math.radians(0.6)   # each placement is polished from itself and from itself turned by this either way
 
 
 class _OneWay:
@@ -47,16 +51,25 @@ class _OneWay:
         self.deep = dst.known_depth > FRINGE
 
     def cost(self, model: np.ndarray) -> Tuple[float, int]:
-        moved = np.rint(tf.apply(model, self.points)).astype(np.int64)
+        moved = tf.apply(model, self.points)
         h, w = self.dst.work.shape
-        inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h)
-        idx = np.flatnonzero(inside)
-        x, y = moved[idx, 0], moved[idx, 1]
-        keep = self.deep[y, x]
+        # within the pixels whose four neighbours right and below exist (bilinear interpolation)
+        inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w - 1) & (moved[:, 1] < h - 1)
+        moved = moved[inside]
+        keep = self.deep[np.rint(moved[:, 1]).astype(np.int64), np.rint(moved[:, 0]).astype(np.int64)]
         if not keep.any():
             return 0.0, 0
-        d = np.minimum(self.dst.wall_distance[y[keep], x[keep]].astype(np.float64), TAU)
+        d = np.minimum(_bilinear(self.dst.wall_distance, moved[keep]), TAU)
         return float((d * d).sum()), int(keep.sum())
+
+
+def _bilinear(field: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """field read at (x, y) points between pixels (each with its right and lower neighbours inside the field)."""
+    x0, y0 = np.floor(points[:, 0]).astype(np.int64), np.floor(points[:, 1]).astype(np.int64)
+    fx, fy = points[:, 0] - x0, points[:, 1] - y0
+    top = field[y0, x0] * (1.0 - fx) + field[y0, x0 + 1] * fx
+    bottom = field[y0 + 1, x0] * (1.0 - fx) + field[y0 + 1, x0 + 1] * fx
+    return top * (1.0 - fy) + bottom * fy
 
 
 def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:
@@ -70,21 +83,24 @@ def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng
         return (a + b) / (na + nb) if na + nb >= MIN_POINTS else math.inf
 
     best, best_cost = models[0], math.inf
-    for model in models:
+    for given in models:
         # turn about the middle of i's walls as placed, so that rotation and translation steps are independent
-        centre = tf.apply(model, pi.walls).mean(axis=0) if len(pi.walls) else np.zeros(2)
-
-        def moved(p: np.ndarray, model=model, centre=centre) -> np.ndarray:
-            c, s = math.cos(p[0]), math.sin(p[0])
-            step = np.array([[c, -s, centre[0] - c * centre[0] + s * centre[1] + p[1]],
-                             [s, c, centre[1] - s * centre[0] - c * centre[1] + p[2]], [0.0, 0.0, 1.0]])
-            return step @ model
-
-        found = moved(descend(cost, moved))
-        found_cost = cost(found)
-        if found_cost < best_cost:
-            best, best_cost = found, found_cost
+        centre = tf.apply(given, pi.walls).mean(axis=0) if len(pi.walls) else np.zeros(2)
+        for turn in (0.0, START_TURN, -START_TURN):
+            model = _turned(given, centre, np.array([turn, 0.0, 0.0]))
+            found = _turned(model, centre, descend(cost, lambda p, m=model: _turned(m, centre, p)))
+            found_cost = cost(found)
+            if found_cost < best_cost:
+                best, best_cost = found, found_cost
     return best
+
+
+def _turned(model: np.ndarray, centre: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """model followed by a turn of p[0] radians about centre and a shift of (p[1], p[2]) pixels."""
+    c, s = math.cos(p[0]), math.sin(p[0])
+    step = np.array([[c, -s, centre[0] - c * centre[0] + s * centre[1] + p[1]],
+                     [s, c, centre[1] - s * centre[0] - c * centre[1] + p[2]], [0.0, 0.0, 1.0]])
+    return step @ model
 
 
 def descend(cost: Callable[[np.ndarray], float], moved: Callable[[np.ndarray], np.ndarray],

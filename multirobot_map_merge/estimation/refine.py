@@ -25,8 +25,7 @@ class RefineSettings:
     icp_iterations: int = 6           # at most, per level
     icp_max_points: int = 2000
     facing: bool = True               # walls seen from opposite sides neither support a placement nor pair in ICP
-    polish_below_support: int = 300   # polish placements with fewer agreeing walls than this (polish.py); 0: never
-    polish_below_overlap_m2: float = 15.0  # and those with a common area smaller than this (a small map's angle)
+    polish: bool = True               # polish every plausible placement after ICP (polish.py); False: ICP's stands
 
     def validate(self) -> None:
         must_be_positive(self, 'icp_iterations', 'icp_max_points')
