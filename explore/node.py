@@ -43,6 +43,7 @@ from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
+from multirobot_map_merge.paramdoc import docstring
 from multirobot_map_merge.throttle import Throttle
 
 from .costmap import Costmap
@@ -54,15 +55,7 @@ from .team_link import TeamLink
 WARN_PERIOD = 5.0        # s (wall) between two identical warnings
 
 
-def _params_doc() -> str:
-    rows = []
-    for d in describe():
-        unit = f' [{d.unit}]' if d.unit else ''
-        rows.append(f'  ~{d.name} ({d.type}, default {d.default!r}){unit}: {d.doc}')
-    return '\n'.join(rows)
-
-
-__doc__ = __doc__.format(params=_params_doc())
+__doc__ = __doc__.format(params=docstring(describe()))
 
 
 def resolve_tf_prefix(frame: str) -> str:

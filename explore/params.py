@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, fields
-from typing import Any, List, Mapping, NamedTuple
+from dataclasses import dataclass, fields
+from typing import Any, List, Mapping
+
+from multirobot_map_merge.paramdoc import ParamDoc, param
+from multirobot_map_merge.paramdoc import describe as describe_params
 
 _log = logging.getLogger('rosout.' + __name__)
 
@@ -17,8 +20,7 @@ class ParamError(ValueError):
     """A parameter value the node cannot run with."""
 
 
-def _p(default: Any, doc: str, unit: str = '', extension: bool = False) -> Any:
-    return field(default=default, metadata={'doc': doc, 'unit': unit, 'extension': extension})
+_p = param
 
 
 @dataclass
@@ -102,16 +104,6 @@ class ExploreParams:
         return params
 
 
-class ParamDoc(NamedTuple):
-    name: str
-    type: str
-    default: Any
-    unit: str
-    doc: str
-    extension: bool
-
-
 def describe() -> List[ParamDoc]:
-    """One row per parameter, in declaration order (source of the doc/explore.md table)."""
-    return [ParamDoc(f.name, f.type, f.default, f.metadata['unit'], f.metadata['doc'], f.metadata['extension'])
-            for f in fields(ExploreParams)]
+    """One row per parameter, in declaration order (source of the doc/explore.md table and the node docstring)."""
+    return describe_params(ExploreParams)

@@ -42,6 +42,8 @@ from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import LaserScan
 
+from multirobot_map_merge.paramdoc import docstring
+
 from .messages import grid_msg, update_msg
 from .params import FleetSimParams, ParamError, describe
 from .robot import ACTIVE, SUCCEEDED, SimRobot
@@ -54,12 +56,7 @@ CLOCK_PERIOD = 0.01        # s (real): /clock at most at 100 Hz; each message wa
 WARN_PERIOD = 10.0
 
 
-def _params_doc() -> str:
-    return '\n'.join(f'  ~{d.name} ({d.type}, default {d.default!r}{", " + d.unit if d.unit else ""}): {d.doc}'
-                     for d in describe())
-
-
-__doc__ = __doc__.format(params=_params_doc())
+__doc__ = __doc__.format(params=docstring(describe()))
 
 
 def _pose_msg(pose, frame: str, stamp) -> PoseStamped:

@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, fields
-from typing import Any, List, Mapping, NamedTuple, Optional
+from dataclasses import dataclass, fields
+from typing import Any, List, Mapping, Optional
+
+from multirobot_map_merge.paramdoc import ParamDoc, param
+from multirobot_map_merge.paramdoc import describe as describe_params
 
 
 class ParamError(ValueError):
     """A parameter value the simulator cannot run with."""
 
 
-def _p(default: Any, doc: str, unit: str = '') -> Any:
-    return field(default=default, metadata={'doc': doc, 'unit': unit})
+_p = param
 
 
 @dataclass(frozen=True)
@@ -158,15 +160,6 @@ class FleetSimParams:
         return params
 
 
-class ParamDoc(NamedTuple):
-    name: str
-    type: str
-    default: Any
-    unit: str
-    doc: str
-
-
 def describe() -> List[ParamDoc]:
     """One row per parameter, in declaration order (source of the doc/fleet_sim.md table and the node docstring)."""
-    return [ParamDoc(f.name, f.type, [] if f.name == 'robots' else f.default, f.metadata['unit'], f.metadata['doc'])
-            for f in fields(FleetSimParams)]
+    return describe_params(FleetSimParams, shown_default=lambda name, default: [] if name == 'robots' else default)

@@ -52,8 +52,8 @@ def _plain_default(value: Any) -> str:
 
 def map_merge_table() -> str:
     rows: List[str] = ['| Parameter | Type | Default | Meaning |', '|---|---|---|---|']
-    for name, kind, default, doc in MapMergeParams.fields_doc():
-        rows.append(f'| `~{name}` | {kind} | `{_default(default)}` | {_cell(doc)} |')
+    for d in MapMergeParams.describe():
+        rows.append(f'| `~{d.name}` | {d.type} | `{_default(d.default)}` | {_cell(d.doc)} |')
     for name, kind, doc in PER_ROBOT:
         rows.append(f'| `{name}` | {kind} | (none) | {_cell(doc)} |')
     return '\n'.join(rows)

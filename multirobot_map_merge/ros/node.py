@@ -59,6 +59,7 @@ from ..admission import describe_invalid
 from ..estimation.features import FeatureCache
 from ..grid import Grid
 from ..msg import MergeStatus
+from ..paramdoc import docstring
 from ..pipeline import MergingPipeline
 from ..throttle import Throttle
 from .conversions import center_origin, grid_to_msg, restamped, transform_msg
@@ -75,12 +76,7 @@ ESTIMATION_REST = 0.5   # an estimation that took b s (wall) is followed by a re
 EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
 
 
-def _params_doc() -> str:
-    return '\n'.join(f'  ~{name} ({kind}, default {default!r}): {doc}'
-                     for name, kind, default, doc in MapMergeParams.fields_doc())
-
-
-__doc__ = __doc__.format(params=_params_doc())
+__doc__ = __doc__.format(params=docstring(MapMergeParams.describe()))
 
 
 class MapMergeNode:

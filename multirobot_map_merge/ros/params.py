@@ -14,13 +14,13 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ..estimation.settings import EstimationSettings
 from ..grid import MAX_CELLS
+from ..paramdoc import ParamDoc, param
+from ..paramdoc import describe as describe_params
 
 ORIGIN_MODES = ('center', 'world')
 
 
-def _p(default: Any, doc: str) -> Any:
-    """A parameter: its code default and its one-line meaning (used by the node docstring and doc/map_merge.md)."""
-    return dataclasses.field(default=default, metadata={'doc': doc})
+_p = param   # a parameter: its code default and its one-line meaning (the node docstring and doc/map_merge.md)
 
 
 # s of correlation search per estimation in the node: a live fleet's small maps seldom place by it, and an estimation
@@ -53,11 +53,10 @@ class MapMergeParams:
                                         'make it larger is left out of that cycle with a warning (1..2^28)')
 
     @classmethod
-    def fields_doc(cls) -> List[Tuple[str, str, Any, str]]:
-        """(name, type name, default, meaning) of every parameter: the one source of the node docstring and of
-        the table in doc/map_merge.md (scripts/param_table.py)."""
-        return [(f.name, _TYPE_NAMES[f.type if isinstance(f.type, type) else _ANNOT[f.type]], f.default,
-                 f.metadata.get('doc', '')) for f in dataclasses.fields(cls)]
+    def describe(cls) -> List[ParamDoc]:
+        """One row per parameter, with ROS type names: the one source of the node docstring and of the table in
+        doc/map_merge.md (scripts/param_table.py)."""
+        return describe_params(cls, type_name=lambda annotation: _TYPE_NAMES[_ANNOT[annotation]])
 
     @classmethod
     def read(cls, get_param: Callable[[str, Any], Any], prefix: str = '~',
