@@ -5,7 +5,7 @@ composes them into the one EstimationSettings):
   features.py    prepare a grid: crop, resample to the working resolution, walls, distance fields, keypoints
   hypotheses.py  candidate screen: descriptor matches, rigid RANSAC hypotheses, a cheap wall-agreement screen
   search.py      correlation search: candidates where descriptors found none (small or featureless overlaps)
-  refine.py      refinement: ICP on walls; polish.py refines small-overlap placements further
+  refine.py      refinement: ICP on walls; polish.py then settles each plausible placement in its best minimum
   verify.py      verification and the acceptance rules (agreement, overlap, support, contradictions, precision.py)
   pair.py        one pair matched through all the stages above
   growth.py      the merge grown from a seed map, newcomers matched against the union of the placed ones

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import transforms as tf
 from ..grid import Grid, crop_to_known
+from .validation import must_be_positive
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.features')
 
@@ -33,8 +34,7 @@ class FeatureSettings:
     def validate(self) -> None:
         if self.feature not in FEATURE_TYPES:
             raise ValueError(f"feature must be one of {', '.join(FEATURE_TYPES)}, not '{self.feature}'")
-        if not self.min_work_resolution > 0:
-            raise ValueError(f'min_work_resolution must be positive, not {self.min_work_resolution}')
+        must_be_positive(self, 'min_work_resolution')
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """Refinement: ICP of one map's walls onto the other's nearest walls, from a candidate placement.
 
 Point-to-point, with a shrinking correspondence radius (coarse capture first, then precise). Walls seen from
-opposite sides are a wall's two faces, not the same wall, and do not pair (`facing`). Placements on a small common
-area are polished further afterwards (polish.py), which ICP alone leaves imprecise there.
+opposite sides are a wall's two faces, not the same wall, and do not pair (`facing`). ICP can settle in a nearby
+minimum, so plausible placements are polished afterwards (polish.py).
 """
 from __future__ import annotations
 
