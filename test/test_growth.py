@@ -119,3 +119,65 @@ def test_estimation_reports_progress_up_to_every_map(repo_root):
     seen = []
     estimate(grids + [None], EstimationSettings(), progress=lambda done, total: seen.append((done, total)))
     assert seen and seen[-1] == (3, 3) and all(a <= b for (a, _), (b, _) in zip(seen, seen[1:]))
+
+
+def _cut(grid: Grid, share: float) -> Grid:
+    """The map as it was before its last rows of known cells were seen: about `share` of its known cells unknown."""
+    data = grid.data.copy()
+    known_per_row = (data >= 0).sum(axis=1)
+    rows = np.flatnonzero(np.cumsum(known_per_row[::-1]) <= share * known_per_row.sum())
+    data[grid.height - 1 - rows] = -1
+    return Grid(data, grid.resolution, grid.origin, grid.frame_id)
+
+
+def test_a_confirmed_placement_is_checked_again_when_the_maps_around_it_have_changed(repo_root, monkeypatch):
+    """Tracking's memory: a verdict stands while the maps it saw are unchanged; a small change to a neighbour's
+    map leaves it standing while the maps still change, and it is made once more when they stop changing (the merge
+    a run ends with rests on the final maps); a large change makes it again at once."""
+    from multirobot_map_merge.estimation import tracking
+    from multirobot_map_merge.estimation.memory import GROWTH, EstimationMemory
+    grids, _ = _sample(repo_root, 'three_robots')
+    s, memory, names = EstimationSettings(), EstimationMemory(), ['a', 'b', 'c']
+    checked = []
+    real_recheck = tracking.recheck
+    monkeypatch.setattr(tracking, 'recheck', lambda k, *args: checked.append(k) or real_recheck(k, *args))
+    state = {'previous': None}
+
+    def rechecks(maps):
+        checked.clear()
+        result = estimate(maps, s, preferred_reference=0, previous=state['previous'], memory=memory, names=names)
+        assert all(t is not None for t in result.transforms)
+        state['previous'] = result.transforms
+        return sorted(set(checked))
+
+    small = [grids[0], _cut(grids[1], GROWTH / 3), grids[2]]
+    rechecks(small)
+    assert rechecks(small) == [0, 1, 2]    # no verdict yet: every placement is checked
+    assert rechecks(small) == []           # nothing changed: the verdicts stand
+    assert rechecks(grids) == []           # map b grew a little and may grow on: they still stand
+    assert rechecks(grids) == [0, 1, 2]    # map b has stopped changing: the verdicts that saw it are made again
+    assert rechecks(grids) == []
+    rechecks([grids[0], _cut(grids[1], 2 * GROWTH), grids[2]])
+    assert rechecks(grids) == [0, 1, 2]    # map b grew by more than GROWTH: made again at once
+
+
+def test_the_reference_moves_the_others_only_by_more_than_its_shared_walls_leave_open():
+    """Re-anchoring: the reference grid, checked against the other placed grids, fits them elsewhere; the others
+    move by the inverse of that fit when the move at its corners is larger than twice the error its shared walls
+    leave there, and stay when it is within it (a small map's wobble, not an early misplacement)."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.tracking import Check, reanchoring
+    from multirobot_map_merge.estimation.verify import Placement
+    box = (0.0, 0.0, 10.0, 8.0)
+    off = tf.rigid(0.05, -0.02, math.radians(0.8))     # 13 cm at the far corner
+    for expected, moves in ((0.02, True), (0.05, True), (0.10, False), (0.30, False)):
+        match = PairMatch(0, 1)
+        match.best = Placement(np.eye(3), corner_error_m=expected)
+        found = reanchoring(Check(0, off, match), box)
+        assert (found is not None) == moves, (expected, found)
+        if found is not None:
+            assert np.allclose(found[0] @ off, np.eye(3))
+            assert found[1] == pytest.approx(0.8, abs=1e-6)
+    match = PairMatch(0, 1)
+    match.best = Placement(np.eye(3), corner_error_m=0.0)
+    assert reanchoring(Check(0, tf.rigid(0.01, 0.0, 0.0), match), box) is None   # below REANCHOR_M

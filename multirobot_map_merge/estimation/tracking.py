@@ -14,27 +14,27 @@ import logging
 import math
 from concurrent.futures import Executor
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Hashable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, prepare
-from .memory import EstimationMemory, unchanged
+from .memory import EstimationMemory, same, unchanged
 from .pair import PairMatch
 from .polish import polish
 from .refine import icp
 from .settings import EstimationSettings
-from .union import Box, compose_near, footprint, most_overlapping
+from .union import Box, compose_near, footprint, most_overlapping, overlap_area
 from .verify import pair_confidence, plausible, refusal, verify
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.tracking')
 
 CONTEXT_M = 1.0   # metres around a grid's footprint taken from the other grids' union
 MAX_PASSES = 3    # checks of the previous placements: after that, every one still failing is dropped
-REANCHOR_RAD = math.radians(0.1)   # the reference fitting the others better by this much moves the others
-REANCHOR_M = 0.03
+REANCHOR_M = 0.03        # metres at the reference's corners: the reference fitting the others better by more than
+REANCHOR_PRECISIONS = 2.0   # this, and than this many times its expected error there, moves the others
 
 
 @dataclass
@@ -43,6 +43,15 @@ class Check:
     k: int
     transform: Optional[np.ndarray]   # the (refined) metric placement, None when it no longer holds
     match: PairMatch                  # figures against the union of the others (j: the most overlapping one)
+
+
+def context(k: int, placed: Dict[int, np.ndarray], footprints: Dict[int, Box]) -> Tuple[Optional[Box], List[int]]:
+    """The area around grid k's footprint that its check looks at, and the other placed grids that meet it."""
+    box = footprints.get(k)
+    if box is None:
+        return None, []
+    area = (box[0] - CONTEXT_M, box[1] - CONTEXT_M, box[2] + CONTEXT_M, box[3] + CONTEXT_M)
+    return area, sorted(m for m in placed if m != k and overlap_area(footprints.get(m), area) > 0.0)
 
 
 def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
@@ -55,7 +64,7 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
     if box is None or match.j < 0:
         match.reason = 'no placed grid near it'
         return Check(k, None, match)
-    area = (box[0] - CONTEXT_M, box[1] - CONTEXT_M, box[2] + CONTEXT_M, box[3] + CONTEXT_M)
+    area, _ = context(k, placed, footprints)
     union = compose_near(grids, others, footprints, area, res)
     target = prepare(union, res, None) if union is not None else None
     if target is None:
@@ -92,26 +101,41 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
           memory: EstimationMemory, names: Sequence) -> Tuple[Dict[int, np.ndarray], List[Check]]:
     """The previous placements (same reference, same merged frame) that still hold, refined, and the checks.
     Empty when the reference itself no longer agrees with the others: then nothing is kept. A placement confirmed
-    by an earlier estimation whose map has barely changed since (memory.py) stands without a new check."""
+    by an earlier estimation stands without a new check while neither its map nor the placed maps near it have
+    changed since (memory.py), nor moved."""
     placed = {k: np.asarray(t, float) for k, t in enumerate(previous)
               if t is not None and k < len(prepared) and prepared[k] is not None}
     if reference not in placed or len(placed) < 2:
         return {}, []
     footprints = {k: box for k, box in ((k, footprint(grids[k], t)) for k, t in placed.items()) if box is not None}
 
+    def seen(k: int) -> Dict[Hashable, Tuple[Grid, np.ndarray]]:
+        """What a check of grid k looks at: grid k and the placed grids near it, as placed."""
+        return {names[m]: (grids[m], placed[m]) for m in [k] + context(k, placed, footprints)[1]}
+
+    # grids whose map is the same as in the last estimation: the maps around a placement have stopped changing
+    # (exploration ended there) when all are; a verdict on earlier, smaller maps is then made once more, so that
+    # the merge a run ends with rests on its final maps (small changes alone do not make a verdict again)
+    settled = {k for k in placed if same(memory.latest.get(names[k]), grids[k])}
+    for k, g in enumerate(grids):
+        if g is not None:
+            memory.latest.put(names[k], g)
+
     def check(k: int) -> Check:
-        confirmed = memory.checks.get(names[k])
-        if confirmed is not None and np.allclose(confirmed[1], placed[k]) and unchanged(confirmed[0], grids[k]):
-            return Check(k, placed[k], confirmed[2])
+        confirmed, now = memory.checks.get(names[k]), seen(k)
+        if confirmed is not None and still_seen(confirmed[0], now, res) \
+                and not (settled.issuperset(m for m in placed if names[m] in now)
+                         and not all(same(confirmed[0][n][0], g) for n, (g, _) in now.items())):
+            return Check(k, placed[k], confirmed[1])
         c = recheck(k, grids, prepared, placed, footprints, res, s)
-        if c.transform is not None:
-            memory.checks.put(names[k], (grids[k], c.transform, c.match))
-        else:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
+        rechecked[k] = c
+        if c.transform is None:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
             memory.checks.drop(names[k])
             memory.keypoints.drop(names[k])
         return c
 
     checks: Dict[int, Check] = {}
+    rechecked: Dict[int, Check] = {}   # the checks made anew (not standing from memory), the last of each grid
     to_check = [k for k in placed if k != reference]
     for _ in range(MAX_PASSES):
         for c in pool.map(check, to_check):
@@ -137,19 +161,50 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
             log.info('the reference grid %d no longer agrees with the others (%s): placements searched anew',
                      reference, ref.match.reason)
             return {}, list(checks.values()) + [ref]
-        box = footprints.get(reference)
-        corners = np.array([[box[0], box[1]], [box[2], box[3]]]) if box is not None else np.zeros((0, 2))
-        rot, shift = tf.difference(ref.transform, np.eye(3), corners)
-        if rot > REANCHOR_RAD or shift > REANCHOR_M:
-            # the others agree among themselves and the reference fits them better elsewhere: an early placement
-            # (small maps) was off; the reference stays the frame, so the others move
+        correction = reanchoring(ref, footprints.get(reference))
+        if correction is not None:
             log.info('re-anchored the placed grids on the reference grid %d (%.2f deg, %.2f m)', reference,
-                     math.degrees(rot), shift)
-            correction = tf.inverse(ref.transform)
+                     *correction[1:])
             for k in placed:
                 if k != reference:
-                    placed[k] = correction @ placed[k]
+                    placed[k] = correction[0] @ placed[k]
     for c in checks.values():
         if c.transform is None:
             log.info('grid %d: %s', c.k, c.match.reason)
+    # the new verdicts, with the placements this estimation ends with (the next one starts from them); a verdict
+    # that stood keeps what it saw then, so that small changes cannot add up unchecked
+    for k in placed:
+        if k in rechecked and rechecked[k].transform is not None:
+            memory.checks.put(names[k], (seen(k), rechecked[k].match))
     return placed, list(checks.values())
+
+
+def reanchoring(ref: Check, box: Optional[Box]) -> Optional[Tuple[np.ndarray, float, float]]:
+    """(correction for the other placements, degrees, metres) when the reference grid, checked against the others,
+    fits them better elsewhere: the others agree among themselves, and an early placement (small maps) was off; the
+    reference stays the frame, so the others move. None when the move at the reference's corners is within
+    REANCHOR_M, or within REANCHOR_PRECISIONS times the error its shared walls leave there: live runs re-anchored
+    by 0.1-0.5 degrees back and forth, and each time carried a weakly placed map along a corridor it could not
+    slide back from."""
+    corners = np.array([[box[0], box[1]], [box[2], box[3]]]) if box is not None else np.zeros((0, 2))
+    rot, shift = tf.difference(ref.transform, np.eye(3), corners)
+    expected = ref.match.best.corner_error_m if ref.match.best is not None else 0.0
+    if shift <= max(REANCHOR_M, REANCHOR_PRECISIONS * expected):
+        return None
+    return tf.inverse(ref.transform), math.degrees(rot), shift
+
+
+def still_seen(before: Dict[Hashable, Tuple[Grid, np.ndarray]], now: Dict[Hashable, Tuple[Grid, np.ndarray]],
+               res: float) -> bool:
+    """Whether the grids a check saw (name -> grid, placement) are the same grids now, barely changed (memory.py)
+    and placed where they were (within a tenth of a cell over 10 m). Not only the checked grid's own: when the
+    maps around it grow, its placement is checked again against the larger union; a live run kept one placed
+    18 cm off from an early union to the end, where the final union put it right."""
+    if before.keys() != now.keys():
+        return False
+    for name, (grid, transform) in now.items():
+        old_grid, old_transform = before[name]
+        if not (unchanged(old_grid, grid) and np.allclose(old_transform[:2, :2], transform[:2, :2], atol=1e-4)
+                and np.allclose(old_transform[:2, 2], transform[:2, 2], atol=0.1 * res)):
+            return False
+    return True
