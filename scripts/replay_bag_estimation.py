@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """Replay the estimations of a live run from a rosbag, as the map_merge node makes them (a diagnostic).
 
-    scripts/env.sh python scripts/replay_bag_estimation.py RUN.bag [--every SIM_S] [--summary SUMMARY.json]
+    scripts/env.sh python scripts/replay_bag_estimation.py RUN.bag [--every SIM_S] [--summary SUMMARY.json] [--more N]
 
 The bag holds the robots' maps and map updates (and map_merge's ~status), as `scripts/demo.sh --record FILE.bag`
 writes it. The robots' maps are rebuilt message by message (full maps and updates, as the node stores them); every
 --every sim seconds (default: at each ~status of the bag, i.e. when the node estimated) the estimation runs on the
 maps of that moment, with the previous placements, the reference and the memory of the last one, as the node's. It
 prints, per estimation: the time, the robots placed (tracked ones marked), the seconds taken, the robots the node
-had placed then, and why each robot left out was refused. With the demo's summary.json, each robot's joinable time
+had placed then, and why each robot left out was refused. --more N estimates N more times on the final maps, as the
+node goes on doing after the bag ends. With the demo's summary.json, each robot's joinable time
 is printed too, so that the reason for a late join shows, and the worst placement error against the ground truth
 (its start poses) of each estimation.
 """
@@ -56,6 +57,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('bag')
     ap.add_argument('--every', type=float, default=0.0, help='sim seconds between estimations (0: at each status)')
     ap.add_argument('--summary', help="the demo's summary.json (joinable times)")
+    ap.add_argument('--more', type=int, default=0, help='estimations on the final maps after the bag ends')
     args = ap.parse_args(argv)
     try:
         import rosbag
@@ -76,6 +78,32 @@ def main(argv: Optional[List[str]] = None) -> int:
     transforms: Dict[str, object] = {}
     reference: Optional[str] = None
     next_at = None
+
+    def estimate_now(now: float, node_placed: Optional[List[str]]) -> None:
+        nonlocal transforms, reference
+        names = list(order)
+        grids = [maps[n].snapshot() for n in names]
+        pipeline.feed(grids)
+        preferred = names.index(reference) if reference in names else None
+        t0 = time.perf_counter()
+        result = pipeline.estimate(preferred_reference=preferred, previous=[transforms.get(n) for n in names],
+                                   names=names)
+        took = time.perf_counter() - t0
+        transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
+        reference = names[result.reference] if result.reference is not None else None
+        placed = sorted(transforms)
+        line = (f't {now:7.1f}  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'
+                + (f'; node had {len(node_placed)}' if node_placed is not None else '')
+                + worst_error(transforms, reference, starts, dict(zip(names, grids))))
+        print(line)
+        for p in result.pairs:
+            n = names[p.i]
+            if n in transforms or not p.reason:
+                continue
+            when = joinable.get(n)
+            print(f'    {n} (joinable {when if when is not None else "-"}) refused against {names[p.j]}: {p.reason}')
+
+    now = 0.0
     for topic, msg, _ in bag.read_messages():
         if topic.endswith('/status'):
             node_placed = sorted(r.robot_namespace for r in msg.robots if r.included)
@@ -103,27 +131,9 @@ def main(argv: Optional[List[str]] = None) -> int:
             if now < next_at:
                 continue
             next_at = now + args.every
-        names = list(order)
-        grids = [maps[n].snapshot() for n in names]
-        pipeline.feed(grids)
-        preferred = names.index(reference) if reference in names else None
-        t0 = time.perf_counter()
-        result = pipeline.estimate(preferred_reference=preferred, previous=[transforms.get(n) for n in names],
-                                   names=names)
-        took = time.perf_counter() - t0
-        transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
-        reference = names[result.reference] if result.reference is not None else None
-        placed = sorted(transforms)
-        line = (f't {now:7.1f}  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'
-                + (f'; node had {len(node_placed)}' if node_placed is not None else '')
-                + worst_error(transforms, reference, starts, dict(zip(names, grids))))
-        print(line)
-        for p in result.pairs:
-            n = names[p.i]
-            if n in transforms or not p.reason:
-                continue
-            when = joinable.get(n)
-            print(f'    {n} (joinable {when if when is not None else "-"}) refused against {names[p.j]}: {p.reason}')
+        estimate_now(now, node_placed)
+    for _ in range(args.more):   # the node goes on estimating on the final maps
+        estimate_now(now, None)
     return 0
 
 
