@@ -131,9 +131,9 @@ def _cut(grid: Grid, share: float) -> Grid:
 
 
 def test_a_confirmed_placement_is_checked_again_when_the_maps_around_it_have_changed(repo_root, monkeypatch):
-    """Tracking's memory: a verdict stands while the maps it saw are unchanged; a small change to a neighbour's
-    map leaves it standing while the maps still change, and it is made once more when they stop changing (the merge
-    a run ends with rests on the final maps); a large change makes it again at once."""
+    """Tracking's memory: a verdict on a placement stands while its map has barely changed, also while the maps
+    near it change; it is made once more when the maps it saw have stopped changing (the merge a run ends with
+    rests on the final maps); a large change of its own map makes it again at once."""
     from multirobot_map_merge.estimation import tracking
     from multirobot_map_merge.estimation.memory import GROWTH, EstimationMemory
     grids, _ = _sample(repo_root, 'three_robots')
@@ -157,8 +157,9 @@ def test_a_confirmed_placement_is_checked_again_when_the_maps_around_it_have_cha
     assert rechecks(grids) == []           # map b grew a little and may grow on: they still stand
     assert rechecks(grids) == [0, 1, 2]    # map b has stopped changing: the verdicts that saw it are made again
     assert rechecks(grids) == []
-    rechecks([grids[0], _cut(grids[1], 2 * GROWTH), grids[2]])
-    assert rechecks(grids) == [0, 1, 2]    # map b grew by more than GROWTH: made again at once
+    assert rechecks([grids[0], _cut(grids[1], 2 * GROWTH), grids[2]]) == [1]   # b lost cells it knew
+    assert rechecks(grids) == [1]          # b grew by more than GROWTH: made again at once; a and c wait
+    assert rechecks(grids) == []           # ... and saw this map b before: theirs stand
 
 
 def test_the_reference_moves_the_others_only_by_more_than_its_shared_walls_leave_open():

@@ -51,13 +51,6 @@ def _classes(data: np.ndarray) -> np.ndarray:
     return np.where(data < 0, -1, np.where(data >= 50, 1, 0)).astype(np.int8)
 
 
-def same(before: Optional[Grid], after: Grid) -> bool:
-    """Whether two grids are the same map, cell for cell."""
-    return before is after or (before is not None and before.origin == after.origin
-                               and before.resolution == after.resolution and before.data.shape == after.data.shape
-                               and np.array_equal(before.data, after.data))
-
-
 def unchanged(before: Optional[Grid], after: Grid) -> bool:
     if before is None:
         return False
@@ -86,10 +79,10 @@ class Store:
 
 
 class EstimationMemory:
-    """checks: name -> (what its last check that held saw: name -> (grid, placement) of the grid and the placed
-    grids near it, the match); keypoints: name -> (grid, points in its
-    map frame, descriptors); tries: (name, union member names) -> (grid, union known pixels) of a failed match;
-    searches: the same for failed correlation searches; latest: name -> its grid in the last estimation."""
+    """checks: name -> (grid, placement, the content keys of the maps its check saw by name, match) of its last
+    placement that held; keypoints: name -> (grid, points in its map frame, descriptors); tries: (name, union
+    member names) -> (grid, union known pixels) of a failed match; searches: the same for failed correlation
+    searches; latest: name -> the content key of its map in the last estimation."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
