@@ -199,7 +199,7 @@ def verdict_stands(verdict: tuple, grid: Grid, transform: np.ndarray, seen: Dict
     grid has barely changed (memory.py) and is placed where it was; and, once the maps around it have stopped
     changing (`settled`), they are the maps the check saw. That last check runs once at the end of a run, so that
     the merge it ends with rests on the final maps: a live run kept a placement made on early maps 18 cm off to the
-    end, and a check on the final maps put it within 4 cm. (Checking again whenever a map nearby grows cost a fleet
+    end, and a check on the final maps put it within 4-10 cm. (Checking again whenever a map nearby grows cost a fleet
     of 30 robots a quarter more estimation time while they explore.)"""
     old_grid, old_transform, old_seen, _ = verdict
     if not (unchanged(old_grid, grid) and np.allclose(old_transform, transform)):
