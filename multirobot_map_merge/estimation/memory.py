@@ -79,10 +79,10 @@ class Store:
 
 
 class EstimationMemory:
-    """checks: name -> (grid, placement, the content keys of the maps its check saw by name, match) of its last
-    placement that held; keypoints: name -> (grid, points in its map frame, descriptors); tries: (name, union
-    member names) -> (grid, union known pixels) of a failed match; searches: the same for failed correlation
-    searches; latest: name -> the content key of its map in the last estimation."""
+    """checks: name -> the verdict of its last placement check that held (tracking.Verdict); keypoints: name ->
+    (grid, points in its map frame, descriptors); tries: (name, union member names) -> (grid, union known pixels) of
+    a failed match; searches: the same for failed correlation searches; latest: name -> the content key of its map
+    in the last estimation."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()

@@ -14,7 +14,7 @@ import logging
 import math
 from concurrent.futures import Executor
 from dataclasses import dataclass
-from typing import Dict, Hashable, List, Optional, Sequence, Tuple
+from typing import Dict, Hashable, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -45,6 +45,14 @@ class Check:
     match: PairMatch                  # figures against the union of the others (j: the most overlapping one)
 
 
+class Verdict(NamedTuple):
+    """What tracking's memory keeps of a check that held (memory.checks, by name)."""
+    grid: Grid                   # the grid checked
+    transform: np.ndarray        # its placement, as the estimation ended
+    seen: Dict[Hashable, str]    # content keys of the maps the check saw (its own, the placed ones near it) by name
+    match: PairMatch
+
+
 def context(k: int, placed: Dict[int, np.ndarray], footprints: Dict[int, Box]) -> Tuple[Optional[Box], List[int]]:
     """The area around grid k's footprint that its check looks at, and the other placed grids that meet it."""
     box = footprints.get(k)
@@ -64,8 +72,8 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
     if box is None or match.j < 0:
         match.reason = 'no placed grid near it'
         return Check(k, None, match)
-    area, _ = context(k, placed, footprints)
-    union = compose_near(grids, others, footprints, area, res)
+    area, near = context(k, placed, footprints)   # the grids its verdict will have seen (track)
+    union = compose_near(grids, others, near, area, res)
     target = prepare(union, res, None) if union is not None else None
     if target is None:
         match.reason = 'no placed grid near it'
@@ -124,7 +132,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         verdict = memory.checks.get(names[k])
         near = seen(k)
         if verdict is not None and verdict_stands(verdict, grids[k], placed[k], near, settled.issuperset(near)):
-            return Check(k, placed[k], verdict[3])
+            return Check(k, placed[k], verdict.match)
         c = recheck(k, grids, prepared, placed, footprints, res, s)
         rechecked[k] = c
         if c.transform is None:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
@@ -173,7 +181,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
     # that stood keeps what it saw then, so that small changes cannot add up unchecked
     for k in placed:
         if k in rechecked and rechecked[k].transform is not None:
-            memory.checks.put(names[k], (grids[k], placed[k], seen(k), rechecked[k].match))
+            memory.checks.put(names[k], Verdict(grids[k], placed[k], seen(k), rechecked[k].match))
     return placed, list(checks.values())
 
 
@@ -192,16 +200,14 @@ def reanchoring(ref: Check, box: Optional[Box]) -> Optional[Tuple[np.ndarray, fl
     return tf.inverse(ref.transform), math.degrees(rot), shift
 
 
-def verdict_stands(verdict: tuple, grid: Grid, transform: np.ndarray, seen: Dict[Hashable, str],
+def verdict_stands(verdict: Verdict, grid: Grid, transform: np.ndarray, seen: Dict[Hashable, str],
                    settled: bool) -> bool:
-    """Whether the verdict on a placement (memory.checks: the grid and its placement then, the contents of the maps
-    its check saw, the match) still stands for `grid` placed by `transform`, the maps near it now being `seen`: the
-    grid has barely changed (memory.py) and is placed where it was; and, once the maps around it have stopped
-    changing (`settled`), they are the maps the check saw. That last check runs once at the end of a run, so that
-    the merge it ends with rests on the final maps: a live run kept a placement made on early maps 18 cm off to the
-    end, and a check on the final maps put it within 4-10 cm. (Checking again whenever a map nearby grows cost a fleet
-    of 30 robots a quarter more estimation time while they explore.)"""
-    old_grid, old_transform, old_seen, _ = verdict
-    if not (unchanged(old_grid, grid) and np.allclose(old_transform, transform)):
+    """Whether a verdict still stands for `grid` placed by `transform`, the maps near it now being `seen`: the grid
+    has barely changed (memory.py) and is placed where it was; and, once the maps around it have stopped changing
+    (`settled`), they are the maps the check saw. That last check runs once at the end of a run, so that the merge
+    it ends with rests on the final maps: a live run kept a placement made on early maps 18 cm off to the end, and
+    a check on the final maps put it within 4-10 cm. (Checking again whenever a map nearby grows cost a fleet of 30
+    robots a quarter more estimation time while they explore.)"""
+    if not (unchanged(verdict.grid, grid) and np.allclose(verdict.transform, transform)):
         return False
-    return not settled or old_seen == seen
+    return not settled or verdict.seen == seen

@@ -62,10 +62,9 @@ def crop(grid: Grid, box: Box) -> Optional[Grid]:
                 grid.frame_id)
 
 
-def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarray],
-                 footprints: Dict[int, Box], box: Box, resolution: float) -> Optional[Grid]:
-    """The union of the placed grids whose footprint meets `box`, cropped to it."""
-    near = [k for k in transforms if overlap_area(footprints.get(k), box) > 0.0]
+def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarray], near: Sequence[int],
+                 box: Box, resolution: float) -> Optional[Grid]:
+    """The union of the placed grids `near` (those whose footprint meets `box`), cropped to the box."""
     if not near:
         return None
     union = compose([grids[k] for k in near], [transforms[k] for k in near], resolution)
