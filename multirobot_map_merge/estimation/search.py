@@ -92,6 +92,13 @@ def _fft_shape(h: int, w: int) -> Tuple[int, int]:
     return cv2.getOptimalDFTSize(h), cv2.getOptimalDFTSize(w)
 
 
+def _spectrum(image: np.ndarray, shape: Tuple[int, int], rows: int) -> np.ndarray:
+    """The DFT (packed CCS) of `image` zero-padded at the bottom and right to `shape`."""
+    padded = np.zeros(shape, np.float32)
+    padded[:image.shape[0], :image.shape[1]] = image
+    return cv2.dft(padded)
+
+
 def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sweep_degrees: float = 3.0,
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
                          free_reward: float = FREE_REWARD,
@@ -103,26 +110,29 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     hj, wj = cj.walls.shape
     diag = int(math.ceil(math.hypot(hi, wi)))
     shape = _fft_shape(diag + hj, diag + wj)
-    fwj = np.fft.rfft2(cj.walls, shape)
-    foj = np.fft.rfft2(cj.open, shape)
+    size = (shape[1], shape[0])
+    # OpenCV's DFT in float32 (packed CCS spectra): several times faster than numpy's, and it releases the GIL.
+    # score = correlation of i's walls and open floor with the terms of j they are weighed against
+    fwj, foj = _spectrum(cj.walls, shape, hj), _spectrum(cj.open, shape, hj)
+    against_walls = fwj - penalty * foj
+    against_open = free_reward * foj - penalty * fwj
     centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
     found = []
     k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
     k_inv = np.linalg.inv(k)
     for angle in rotation_candidates(ci, cj, sweep_degrees):
         c, s = math.cos(angle), math.sin(angle)
-        # turn about the centre and put the result in a diag x diag canvas
+        # turn about the centre into the top-left diag x diag corner of a zero canvas of the DFT's size
         m = np.array([[c, -s, 0.0], [s, c, 0.0]])
         m[:, 2] = diag / 2.0 - m[:, :2] @ centre
-        wr = cv2.warpAffine(ci.walls, m, (diag, diag), flags=cv2.INTER_NEAREST)
-        orr = cv2.warpAffine(ci.open, m, (diag, diag), flags=cv2.INTER_NEAREST)
-        if wr.sum() < 5:
+        wr = cv2.warpAffine(ci.walls, m, size, flags=cv2.INTER_NEAREST)
+        if cv2.countNonZero(wr) < 5:
             continue
-        fw, fo = np.fft.rfft2(wr, shape), np.fft.rfft2(orr, shape)
-        score = np.fft.irfft2(np.conj(fw) * (fwj - penalty * foj) - penalty * np.conj(fo) * fwj
-                             + free_reward * np.conj(fo) * foj, shape)
-        # local maxima, best first; numpy < 2 computes the FFT in float64 whatever the input: compare in float32
-        score = score.astype(np.float32, copy=False)
+        orr = cv2.warpAffine(ci.open, m, size, flags=cv2.INTER_NEAREST)
+        spectrum = cv2.mulSpectrums(against_walls, cv2.dft(wr), 0, conjB=True)
+        spectrum += cv2.mulSpectrums(against_open, cv2.dft(orr), 0, conjB=True)
+        score = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        # local maxima, best first
         peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
         ys, xs = np.nonzero(peaks)
         if ys.size == 0:
