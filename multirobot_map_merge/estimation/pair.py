@@ -31,6 +31,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.pair')
 
 POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished, the best kept
 LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in before it is screened
+RESCUE_PLACES = 3       # distinct places polished when no candidate is plausible (see rescued)
 
 
 @dataclass
@@ -96,14 +97,40 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     return None
 
 
+def rescued(pi: PreparedGrid, pj: PreparedGrid, candidates: List[Placement], s: EstimationSettings,
+            rng: np.random.Generator) -> List[Placement]:
+    """The places of the best candidates with the support and common area of an acceptable placement, each polished
+    from its estimates (as the final polish); those that then pass the rules of `plausible`. From a search candidate
+    a few tenths of a degree and of a metre off, ICP settles in a minimum half a metre and a degree away where part
+    of the walls disagree (seen matching two groups' unions: agreement 0.5-0.8 there, 1.0 at the truth); the
+    polish's symmetric cost reaches the truth."""
+    large = sorted((c for c in candidates if c.support >= s.min_support and c.overlap_m2 >= s.min_overlap_m2),
+                   key=lambda c: -c.score(s.conflict_weight))
+    out: List[Placement] = []
+    places: List[np.ndarray] = []
+    for c in large:
+        if len(places) >= RESCUE_PLACES:
+            break
+        if any(not distinct(c.transform, t, pi, s) for t in places):
+            continue
+        places.append(c.transform)
+        starts = [e.transform for e in large if not distinct(e.transform, c.transform, pi, s)][:POLISH_STARTS]
+        polished = verify(pi, pj, polish(pi, pj, starts, rng), s)
+        if plausible(polished, s):
+            out.append(polished)
+    return out
+
+
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
-               search: bool = True, onto_union: bool = False, descriptors: bool = True) -> PairMatch:
+               search: bool = True, onto_union: bool = False, descriptors: bool = True,
+               search_past_contradiction: bool = False) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
 
     With search=False, only descriptor matches propose placements (cheap); otherwise a correlation search adds
     candidates when they found no plausible one. With descriptors=False, only the search does (the caller has
     matched descriptors already and found nothing plausible). With `onto_union`, j is the union of a placed group
-    (see refusal).
+    (see refusal). A search is not made when the descriptors found where the maps overlap and they contradict
+    there (a broken map: a search finds the same), unless `search_past_contradiction` (see growth.py).
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
@@ -132,7 +159,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
 
     candidates = refine_all(hypotheses(p, q, s, rng))
     best = max(candidates, key=rank, default=None)
-    if search and (best is None or not plausible(best, s)) and not overlap_found(best, s, onto_union):
+    if search and (best is None or not plausible(best, s)) \
+            and (search_past_contradiction or not overlap_found(best, s, onto_union)):
         # too few good descriptor matches (small overlaps): search placements by correlation instead;
         # not when the overlap was found and the maps contradict there (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,
@@ -142,6 +170,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     if best is None:
         result.reason = 'no rigid model'
         return result
+    if s.polish and not plausible(best, s):
+        candidates += rescued(pi, pj, candidates, s, rng)
+        best = max(candidates, key=rank)
     if plausible(best, s):
         # only worth the extra work for a placement that could be accepted
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
