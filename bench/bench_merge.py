@@ -2,6 +2,7 @@
 """Benchmark of the merging core (not a test: it prints figures and their ratio to the targets).
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
 Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
@@ -16,6 +17,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
@@ -190,6 +192,112 @@ def targets(results: List[dict]) -> List[str]:
     return out
 
 
+# ----------------------------------------------------------------------------------------------- generated rows
+# Rows on scenarios that scripts/make_sample_maps.py generates (not in the shared data): made on demand into a cache
+# folder, registered in ROWS only when asked for (--large36) so the default table is unchanged.
+GENERATED_ROWS: Dict[str, Tuple[str, str]] = {
+    'large36': ('large36', '36 maps, 9 broken (generated)'),
+}
+LARGE36_TARGET_S = 3.0          # issue #13: one estimation of the 36 maps by merge_maps
+SHARED_EVAL = REPO / '..' / 'shared' / 'eval'
+
+
+def ensure_generated(cache: Path, name: str) -> Optional[float]:
+    """Generate scenario ``name`` into cache/name unless its truth.json (written last) is there; returns the
+    generation's wall time, or None if it was cached."""
+    if (cache / name / 'truth.json').is_file():
+        return None
+    cache.mkdir(parents=True, exist_ok=True)
+    print(f'... generating {name} into {cache} (a few minutes)', file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    cmd = [sys.executable, str(REPO / 'scripts' / 'make_sample_maps.py'), '--scenario', name, '--out', str(cache)]
+    proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+    sys.stderr.write(proc.stdout)
+    if not (cache / name / 'truth.json').is_file():
+        raise RuntimeError(f'generating {name} failed (exit {proc.returncode})')
+    return time.perf_counter() - t0
+
+
+def merge_and_score(folder: Path, out_dir: Path) -> Optional[dict]:
+    """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
+    with the shared scorer; None if the scorer is missing or a step failed."""
+    score_py = SHARED_EVAL / 'score.py'
+    if not score_py.is_file():
+        print(f'bench_merge: {score_py} not found: not scored', file=sys.stderr)
+        return None
+    truth = json.loads((folder / 'truth.json').read_text())
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = out_dir / 'result.json'
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
+    merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
+             '--output', str(out_dir / 'merged'), *(str(folder / m['file']) for m in truth['maps'])]
+    print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
+    if subprocess.run(merge, env=env, stdout=subprocess.DEVNULL).returncode != 0 or not result.is_file():
+        print('bench_merge: merge_maps failed', file=sys.stderr)
+        return None
+    proc = subprocess.run([sys.executable, str(score_py), '--truth', str(folder / 'truth.json'),
+                           '--result', str(result)], stdout=subprocess.PIPE, text=True)
+    if proc.returncode != 0:
+        print('bench_merge: score.py failed', file=sys.stderr)
+        return None
+    return json.loads(proc.stdout)
+
+
+def scenario_lines(truth: dict) -> List[str]:
+    """The generated scenario's own figures (sizes, broken and mergeable maps), read from its truth."""
+    ms = truth['maps']
+    cells = sorted(m['size'][0] * m['size'][1] for m in ms)
+    big = max(ms, key=lambda m: m['size'][0] * m['size'][1])['size']
+    small = min(ms, key=lambda m: m['size'][0] * m['size'][1])['size']
+    broken = sum(m['broken'] for m in ms)
+    return [f"- scenario {truth['scenario']} ({truth['world']}, {truth['world_size_m'][0]:g} x "
+            f"{truth['world_size_m'][1]:g} m): {len(ms)} maps of {small[0]}x{small[1]} to {big[0]}x{big[1]} cells "
+            f"(median {cells[len(cells) // 2] / 1e3:.0f} k cells, total {sum(cells) / 1e6:.1f} M), {broken} broken, "
+            f"{len(truth['mergeable'])} mergeable"]
+
+
+def score_lines(s: Optional[dict]) -> List[str]:
+    if s is None:
+        return ['- not scored']
+    pairs = s['pairs']
+    rot = med([p['rot_deg'] for p in pairs])
+    trans = med([p['trans_cells'] for p in pairs])
+    t = (s['estimate_ms'] or 0.0) / 1000
+    return [f"- merge_maps (own process, cold): estimate {t:.2f} s = {t / LARGE36_TARGET_S:.2f} x target; "
+            f"scorer: correct {s['correct']}/{s['mergeable']} mergeable, false merges {s['wrong']}, excluded "
+            f"{s['excluded']}, broken maps placed consistently {s['broken_ok']}, extra {s['extra_ok']}; "
+            f"pair error median {fmt(rot, digits=3)} deg, {fmt(trans)} cells"]
+
+
+def run_large36(cache: Path, repeat: int, markdown: Optional[Path]) -> int:
+    """Generate (if missing) and time the 36-map scenario as the 30-map row, then merge_maps + score it."""
+    name = 'large36'
+    try:
+        gen_s = ensure_generated(cache, name)
+    except RuntimeError as e:
+        print(f'bench_merge: {e}', file=sys.stderr)
+        return 2
+    folder = cache / GENERATED_ROWS[name][0]
+    truth = json.loads((folder / 'truth.json').read_text())
+    row = spawn_row(name, cache, repeat)
+    scored = merge_and_score(folder, cache / f'{name}_result')
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
+    made = 'cached' if gen_s is None else f'generated in {gen_s:.0f} s'
+    lines = [f'generated-scenario benchmark ({folder}, {made}): {repeat} repeat(s), median; {cpus} CPUs, load '
+             f'average {os.getloadavg()[0]:.2f}', '']
+    if row is not None:
+        t = row['cold']
+        lines += [*table([row]), '',
+                  f"- {len(truth['maps'])} maps ({sum(m['broken'] for m in truth['maps'])} broken) estimated in "
+                  f'under {LARGE36_TARGET_S:.0f} s: {t:.2f} s = '
+                  f'{t / LARGE36_TARGET_S:.2f} x target ({"met" if t <= LARGE36_TARGET_S else "MISSED"})']
+    lines += scenario_lines(truth) + score_lines(scored)
+    print('\n'.join(lines))
+    if markdown:
+        markdown.write_text('\n'.join(lines) + '\n')
+    return 0 if row is not None and scored is not None else 1
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--data', type=Path, default=REPO / '..' / 'shared' / 'data' / 'dev')
@@ -198,8 +306,15 @@ def main() -> int:
     ap.add_argument('--markdown', type=Path, help='also write the table as Markdown to this file')
     ap.add_argument('--curve', action='store_true',
                     help='only the cost curve: estimation of the first 2..30 maps of the 30-map scenario')
-    ap.add_argument('--row', choices=list(ROWS), help=argparse.SUPPRESS)   # internal: one row, JSON out
+    ap.add_argument('--large36', type=Path, nargs='?', const=REPO / 'out' / 'bench', metavar='CACHE',
+                    help='only the generated 36-map scenario (9 broken maps): made into CACHE/large36 if missing '
+                         '(default out/bench), timed as the 30-map row, then merged by merge_maps and scored')
+    ap.add_argument('--row', choices=list(ROWS) + list(GENERATED_ROWS), help=argparse.SUPPRESS)   # internal
     args = ap.parse_args()
+    if args.large36 or args.row in GENERATED_ROWS:
+        ROWS.update(GENERATED_ROWS)
+    if args.large36:
+        return run_large36(args.large36.resolve(), max(1, args.repeat), args.markdown)
     data_dir = args.data.resolve()
     if not data_dir.is_dir():
         print(f'bench_merge: data directory {data_dir} not found (use --data DIR)', file=sys.stderr)

@@ -2,10 +2,12 @@
 """Make the project's sample maps: a generated building and robot maps cut from it with the laser mapper.
 
     python3 scripts/make_sample_maps.py [--out data/samples] [--preview DIR]
+    python3 scripts/make_sample_maps.py --scenario large36 --out DIR [--preview DIR]
 
 Writes <out>/world.yaml/.pgm and, per scenario, <out>/<scenario>/map_NN.yaml/.pgm (each map in its robot's own
 frame: start pose at the origin) and truth.json in the format of the shared scorer (mmeval-truth-1). Deterministic:
-the same files on every run.
+the same files on every run. --scenario NAME writes only the generated scenario NAME (see GENERATED: random robots
+in a building of its own, with broken maps) to <out>/NAME; it is not part of the default run.
 """
 from __future__ import annotations
 
@@ -14,8 +16,9 @@ import json
 import math
 import os
 import sys
+import time
 import zlib
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import networkx as nx
@@ -24,7 +27,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
 from fleet_sim.laser import beam_angles, cast  # noqa: E402
-from fleet_sim.mapping import LogOddsMap, relative_pose  # noqa: E402
+from fleet_sim.mapping import LogOddsMap, compose, relative_pose  # noqa: E402
 from fleet_sim.world import make_floor_plan, obstacle_mask  # noqa: E402
 from multirobot_map_merge.grid import Grid, crop_to_known  # noqa: E402
 from multirobot_map_merge.mapio import save_map, save_png  # noqa: E402
@@ -210,14 +213,233 @@ def make_scenario(name: str, spec: dict, world: Grid, out_dir: str, preview: str
     return truth
 
 
+# ----------------------------------------------------------------------------------------------- generated scenarios
+# Scenarios whose robots are drawn at random (seeded) in a building of their own, not written by default (several
+# MB): `--scenario NAME --out DIR` writes DIR/NAME only. large36: issue #13's benchmark, a fleet of 36 robots in
+# another building with 9 broken maps, like the thesis' §4.6 scenario.
+GENERATED: Dict[str, dict] = {
+    'large36': {'kind': 'large', 'world_seed': 5, 'world_size_m': (48.0, 32.0), 'seed': 36, 'n_robots': 36,
+                'n_broken': 9, 'max_range': 8.0,
+                'goals': (2, 3),              # goals per robot (inclusive)
+                'goal_step_m': (3.0, 9.0),    # driving distance of a goal from the previous one (8-connected
+                                              # steps of plan()'s 0.1 m lattice, a diagonal counting as one)
+                'break_at': (0.35, 0.65),     # break point as a fraction of the robot's scans
+                'broken_deg': (10.0, 40.0),   # |rotation| of the part after the break
+                'min_linked': 0.75},          # healthy maps with an overlapping neighbour, else retune the spec
+}
+
+
+def free_with_clearance(world: Grid) -> Tuple[np.ndarray, np.ndarray]:
+    """(obstacles, free space eroded by CLEARANCE_M) as make_scenario uses them."""
+    occ = obstacle_mask(world)
+    radius = int(round(CLEARANCE_M / RES))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+    return occ, cv2.erode((~occ).astype(np.uint8), k, borderValue=0).astype(bool)
+
+
+def reachable_lattice(free: np.ndarray, res: float) -> Tuple[np.ndarray, float]:
+    """(mask, step in metres) of the largest 8-connected part of plan()'s 0.1 m lattice (cell (r, c) centred at
+    ((c + 0.5) step, (r + 0.5) step)): starts and goals drawn from it are always joined by a path, so plan() never
+    fails on a random draw."""
+    k = max(1, int(round(0.1 / res)))
+    h, w = free.shape[0] // k, free.shape[1] // k
+    coarse = free[:h * k, :w * k].reshape(h, k, w, k).all(axis=(1, 3)).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(coarse, connectivity=8)
+    if n < 2:
+        raise RuntimeError('no free space with clearance in the world')
+    return labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])), res * k
+
+
+def lattice_steps(mask: np.ndarray, cell: Tuple[int, int], max_steps: int) -> np.ndarray:
+    """Steps (8-connected, as plan()'s lattice; -1: more than max_steps) from cell (row, col) through mask: a
+    geodesic distance, so a goal drawn by it is a few metres of driving away, not just across a wall."""
+    steps = np.full(mask.shape, -1, np.int32)
+    steps[cell] = 0
+    front = np.zeros(mask.shape, np.uint8)
+    front[cell] = 1
+    allowed = mask.astype(np.uint8)
+    square = np.ones((3, 3), np.uint8)
+    for n in range(1, max_steps + 1):
+        grown = cv2.dilate(front, square) & allowed
+        new = (grown > 0) & (steps < 0)
+        if not new.any():
+            break
+        steps[new] = n
+        front = grown
+    return steps
+
+
+def random_robots(spec: dict, mask: np.ndarray, step: float, rng: np.random.Generator) -> List[Tuple]:
+    """Robots as in SCENARIOS (x, y, yaw in degrees, goals): random start and yaw, each goal a few metres of
+    driving from the previous one (as a fleet's exploration goals are, near the frontier the robot is at), so maps
+    overlap in chains and groups as a real fleet's do."""
+    cells = np.argwhere(mask)                          # (row, col), row-major: a stable order to draw from
+    lo, hi = (int(round(v / step)) for v in spec['goal_step_m'])
+    centre = lambda rc: (round(float((rc[1] + 0.5) * step), 6), round(float((rc[0] + 0.5) * step), 6))  # noqa: E731
+    robots = []
+    for _ in range(spec['n_robots']):
+        here = tuple(cells[rng.integers(len(cells))])
+        start = centre(here)
+        yaw = round(float(rng.uniform(-180.0, 180.0)), 1)
+        goals = []
+        for _ in range(int(rng.integers(spec['goals'][0], spec['goals'][1] + 1))):
+            d = lattice_steps(mask, here, hi)
+            near = np.argwhere(d >= lo)
+            if not len(near):                          # a dead end smaller than lo: anywhere it can reach
+                near = np.argwhere(d > 0)
+            here = tuple(near[rng.integers(len(near))])
+            goals.append(centre(here))
+        robots.append((*start, yaw, goals))
+    return robots
+
+
+def rotation_about(pivot: Sequence[float], deg: float) -> Tuple[float, float, float]:
+    """The rigid transform (as a pose) that rotates by deg about pivot: q -> R q + (p - R p)."""
+    a = math.radians(deg)
+    c, s = math.cos(a), math.sin(a)
+    return (pivot[0] - c * pivot[0] + s * pivot[1], pivot[1] - s * pivot[0] - c * pivot[1], a)
+
+
+def draw_breaks(spec: dict, rng: np.random.Generator) -> Dict[int, Tuple[float, float]]:
+    """Broken robots -> (break point as a fraction of the scans, signed rotation in degrees)."""
+    broken = sorted(int(i) for i in rng.choice(spec['n_robots'], spec['n_broken'], replace=False))
+    out = {}
+    for i in broken:
+        frac = float(rng.uniform(*spec['break_at']))
+        deg = float(rng.uniform(*spec['broken_deg'])) * (1.0 if rng.random() < 0.5 else -1.0)
+        out[i] = (frac, round(deg, 3))
+    return out
+
+
+def map_robot(occ: np.ndarray, path: List[Tuple[float, float, float]], max_range: float, rng: np.random.Generator,
+              brk: Optional[Tuple[float, float]] = None) -> Tuple[LogOddsMap, Tuple[float, float, float]]:
+    """Laser-map a path in the robot's own frame; with brk = (fraction, degrees) a simulated SLAM failure: from the
+    break scan on, every pose is rotated by the angle about the break point (the robot's map-frame position there),
+    so the rest of the map is built rotated. Returns the mapper and the correction D (identity if not broken): the
+    part after the break shows world content q (map frame) at D q."""
+    start = path[0]
+    angles = beam_angles(LASER['n_beams'])
+    mapper = LogOddsMap(RES)
+    b = int(brk[0] * len(path)) if brk else len(path)
+    rel = [relative_pose(start, p) for p in path]
+    d = rotation_about(rel[b][:2], brk[1]) if brk else (0.0, 0.0, 0.0)
+    for k, p in enumerate(path):
+        ranges = cast(occ, RES, p, LASER['n_beams'], max_range, rng, LASER['sigma'], LASER['dropout'])
+        mapper.integrate(rel[k] if k < b else compose(d, rel[k]), ranges, angles, max_range)
+    return mapper, d
+
+
+def healthy_components(maps: List[Grid], poses: List[Sequence[float]], world: Grid, broken: Sequence[int]) -> list:
+    """OVERLAP_DEFINITION's components: those of the healthy maps only, in the indices of all maps."""
+    keep = [i for i in range(len(maps)) if i not in set(broken)]
+    ov = overlap_stats([maps[i] for i in keep], [poses[i] for i in keep], world)
+    return sorted(([keep[j] for j in c] for c in ov['components']), key=lambda c: (-len(c), c))
+
+
+def make_generated(name: str, spec: dict, out_dir: str, preview: str) -> dict:
+    """Write out_dir/name (maps and truth.json, the format of make_scenario plus broken maps); returns the truth."""
+    world = make_floor_plan(spec['world_seed'], *spec['world_size_m'], resolution=RES)
+    occ, free = free_with_clearance(world)
+    mask, step = reachable_lattice(free, RES)
+    layout = np.random.default_rng(spec['seed'])                    # robots and breaks
+    noise = np.random.default_rng(zlib.crc32(name.encode()))         # laser noise, as make_scenario
+    robots = random_robots(spec, mask, step, layout)
+    breaks = draw_breaks(spec, layout)
+    max_range = spec['max_range']
+    os.makedirs(os.path.join(out_dir, name), exist_ok=True)
+    if preview:
+        save_png(world, os.path.join(preview, f'{name}_world.png'))
+    maps, poses, entries = [], [], []
+    for i, (sx, sy, syaw, goals) in enumerate(robots):
+        start = (sx, sy, math.radians(syaw))
+        path = drive(free, start, goals, RES)
+        mapper, d = map_robot(occ, path, max_range, noise, breaks.get(i))
+        grid = crop_known(mapper.to_grid(frame_id=f'robot{i + 1}/map'))
+        fname = f'map_{i:02d}.yaml'
+        save_map(grid, os.path.join(out_dir, name, fname[:-5]))
+        if preview:
+            save_png(grid, os.path.join(preview, f'{name}_{fname[:-5]}.png'))
+        # the map frame's pose that fits the part after the break: world = start ∘ D^-1 ∘ (corrupted map)
+        alt = [compose(start, relative_pose(d, (0.0, 0.0, 0.0)))] if i in breaks else []
+        length = sum(math.dist(a[:2], b[:2]) for a, b in zip(path[:-1], path[1:]))
+        maps.append(grid)
+        poses.append(start)
+        entries.append({'file': fname, 'pose': [round(sx, 6), round(sy, 6), round(math.radians(syaw), 6)],
+                        'resolution': RES, 'size': [grid.width, grid.height], 'canvas': False,
+                        'broken': i in breaks, 'broken_deg': breaks[i][1] if i in breaks else 0.0,
+                        'alt_poses': [[round(float(v), 6) for v in a] for a in alt], 'drift_max_m': 0.0,
+                        'path_length_m': round(length, 2), 'n_scans': len(path),
+                        'known_area_m2': round(float(grid.known_mask().sum()) * RES * RES, 2),
+                        'known_bbox': known_bbox(grid)})
+    # shared area of a broken map is counted at its main pose; broken maps are left out of the components
+    ov = overlap_stats(maps, poses, world)
+    comps = healthy_components(maps, poses, world, sorted(breaks))
+    mergeable = comps[0] if comps else []
+    for i, e in enumerate(entries):
+        e['mergeable'] = i in mergeable
+    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': spec['kind'],
+             'world': f"floor_plan_{spec['world_seed']}", 'split': 'generated', 'seed': spec['world_seed'],
+             'world_frame': 'ground-truth grid of the world: origin at its lower-left corner, x right, y up (m)',
+             'world_size_m': [round(world.width * RES, 6), round(world.height * RES, 6)],
+             'laser': dict(LASER, max_range=max_range), 'maps': entries, 'mergeable': mergeable,
+             'components': comps,
+             'overlap': dict(OVERLAP, definition=OVERLAP_DEFINITION, shared_m2=ov['shared_m2'],
+                             fraction=ov['fraction'])}
+    # truth.json last: its presence means the scenario is complete (bench_merge caches on it)
+    with open(os.path.join(out_dir, name, 'truth.json'), 'w') as f:
+        json.dump(truth, f, indent=1)
+        f.write('\n')
+    return truth
+
+
+def linked_healthy(truth: dict) -> List[int]:
+    """Healthy maps that overlap at least one other healthy map enough to be merged with it."""
+    ov = truth['overlap']
+    healthy = [i for i, m in enumerate(truth['maps']) if not m['broken']]
+    return [i for i in healthy if any(ov['shared_m2'][i][j] >= ov['min_shared_m2'] and
+                                      ov['fraction'][i][j] >= ov['min_fraction'] for j in healthy if j != i)]
+
+
+def summarize_generated(name: str, spec: dict, truth: dict, seconds: float) -> int:
+    """Print the scenario's figures; 1 if too few healthy maps overlap another (the spec needs retuning)."""
+    ms = truth['maps']
+    areas = sorted(m['known_area_m2'] for m in ms)
+    paths = sorted(m['path_length_m'] for m in ms)
+    cells = sorted(m['size'][0] * m['size'][1] for m in ms)
+    broken = [(i, m['broken_deg']) for i, m in enumerate(ms) if m['broken']]
+    linked = linked_healthy(truth)
+    healthy = len(ms) - len(broken)
+    print(f"{name}: {len(ms)} maps in {truth['world']} ({truth['world_size_m'][0]:g} x {truth['world_size_m'][1]:g} m) "
+          f"generated in {seconds:.1f} s; map cells {cells[0]}..{cells[-1]} (median {cells[len(cells) // 2]}), "
+          f"known area {areas[0]:.0f}..{areas[-1]:.0f} m2, paths {paths[0]:.0f}..{paths[-1]:.0f} m")
+    print(f"{name}: broken {broken}; mergeable {len(truth['mergeable'])} of {healthy} healthy maps "
+          f"(components {[len(c) for c in truth['components']]}); {len(linked)} healthy maps overlap another")
+    if len(linked) < spec['min_linked'] * healthy:
+        print(f"{name}: only {len(linked)} of {healthy} healthy maps overlap another", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main_generated(name: str, out: str, preview: str) -> int:
+    t0 = time.perf_counter()
+    truth = make_generated(name, GENERATED[name], out, preview)
+    return summarize_generated(name, GENERATED[name], truth, time.perf_counter() - t0)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', default=os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'data', 'samples'))
     ap.add_argument('--preview', default='', help='also write PNG previews of every map into this folder')
+    ap.add_argument('--scenario', choices=list(GENERATED),
+                    help='write only this generated scenario (not made by default: several MB) to <out>/NAME')
     args = ap.parse_args(argv)
+    if args.scenario and os.path.realpath(args.out) == os.path.realpath(ap.get_default('out')):
+        ap.error('--scenario needs --out DIR: a generated scenario is several MB, not one for data/samples')
     os.makedirs(args.out, exist_ok=True)
     if args.preview:
         os.makedirs(args.preview, exist_ok=True)
+    if args.scenario:
+        return main_generated(args.scenario, args.out, args.preview)
     world = make_floor_plan(WORLD_SEED, *WORLD_SIZE_M, resolution=RES)
     save_map(world, os.path.join(args.out, 'world'))
     if args.preview:
