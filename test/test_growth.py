@@ -206,7 +206,7 @@ def test_two_groups_are_searched_although_their_descriptors_found_a_contradictin
     s, u = _group_unions(repo_root)
     kept = match_pair(0, 1, u['b'], u['a'], s, onto_union=True)
     assert not kept.accepted and 'agreement' in kept.reason and _off(kept)[1] > 10.0
-    searched = match_pair(0, 1, u['b'], u['a'], s, onto_union=True, search_past_contradiction=True)
+    searched = match_pair(0, 1, u['b'], u['a'], s, onto_union=True, between_groups=True)
     assert searched.accepted, searched.reason
     rot, shift = _off(searched)
     assert rot < 1.0 and shift < 0.15
@@ -214,14 +214,14 @@ def test_two_groups_are_searched_although_their_descriptors_found_a_contradictin
 
 def test_a_search_candidate_that_icp_leaves_half_a_metre_off_is_polished_into_place(repo_root, monkeypatch):
     """Searched onto union a, union c's best candidates settle 1.5 degrees and 0.45 m off, where part of the walls
-    disagree (agreement 0.77). Polished when no candidate passes, the place passes, near the truth; without that
-    the pair is refused."""
+    disagree (agreement 0.77). Between groups, polished when no candidate passes, the place passes, near the
+    truth; without that the pair is refused."""
     import multirobot_map_merge.estimation.pair as pair
     s, u = _group_unions(repo_root)
-    rescued = match_pair(0, 1, u['c'], u['a'], s, onto_union=True, descriptors=False)
+    rescued = match_pair(0, 1, u['c'], u['a'], s, onto_union=True, descriptors=False, between_groups=True)
     assert rescued.accepted, rescued.reason
     rot, shift = _off(rescued)
     assert rot < 1.0 and shift < 0.15
     monkeypatch.setattr(pair, 'RESCUE_PLACES', 0)
-    unpolished = match_pair(0, 1, u['c'], u['a'], s, onto_union=True, descriptors=False)
+    unpolished = match_pair(0, 1, u['c'], u['a'], s, onto_union=True, descriptors=False, between_groups=True)
     assert not unpolished.accepted and 'agreement' in unpolished.reason

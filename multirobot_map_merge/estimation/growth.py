@@ -232,11 +232,11 @@ class Grower:
         self.tried[(small.seed, id(big))] = big.union.version
         started = time.perf_counter()
         # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
-        # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no broken
-        # map, so such a contradiction says nothing about where the groups overlap
+        # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map that
+        # contradicts its members, so such a contradiction says nothing about where the groups overlap
         m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
                        search=self.search_seconds < self.s.search_budget_s, onto_union=len(big.members) > 1,
-                       search_past_contradiction=True)
+                       between_groups=True)
         self.search_seconds += time.perf_counter() - started
         return m
 
