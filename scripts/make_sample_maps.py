@@ -199,12 +199,20 @@ def make_scenario(name: str, spec: dict, world: Grid, out_dir: str, preview: str
     mergeable = ov['components'][0] if ov['components'] else []
     for i, e in enumerate(entries):
         e['mergeable'] = i in mergeable
-    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': spec['kind'], 'world': f'floor_plan_{WORLD_SEED}',
-             'split': 'samples', 'seed': WORLD_SEED,
+    return write_truth(out_dir, name, spec['kind'], WORLD_SEED, 'samples', world, max_range, entries, mergeable,
+                       ov['components'], ov)
+
+
+def write_truth(out_dir: str, name: str, kind: str, world_seed: int, split: str, world: Grid, max_range: float,
+                entries: List[dict], mergeable: List[int], components: list, ov: dict) -> dict:
+    """Write <out_dir>/<name>/truth.json in the shared scorer's format (mmeval-truth-1) and return it. Written last:
+    its presence means the scenario is complete (bench_merge caches on it)."""
+    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': kind, 'world': f'floor_plan_{world_seed}',
+             'split': split, 'seed': world_seed,
              'world_frame': 'ground-truth grid of the world: origin at its lower-left corner, x right, y up (m)',
              'world_size_m': [round(world.width * RES, 6), round(world.height * RES, 6)],
              'laser': dict(LASER, max_range=max_range), 'maps': entries, 'mergeable': mergeable,
-             'components': ov['components'],
+             'components': components,
              'overlap': dict(OVERLAP, definition=OVERLAP_DEFINITION, shared_m2=ov['shared_m2'],
                              fraction=ov['fraction'])}
     with open(os.path.join(out_dir, name, 'truth.json'), 'w') as f:
@@ -377,19 +385,8 @@ def make_generated(name: str, spec: dict, out_dir: str, preview: str) -> dict:
     mergeable = comps[0] if comps else []
     for i, e in enumerate(entries):
         e['mergeable'] = i in mergeable
-    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': spec['kind'],
-             'world': f"floor_plan_{spec['world_seed']}", 'split': 'generated', 'seed': spec['world_seed'],
-             'world_frame': 'ground-truth grid of the world: origin at its lower-left corner, x right, y up (m)',
-             'world_size_m': [round(world.width * RES, 6), round(world.height * RES, 6)],
-             'laser': dict(LASER, max_range=max_range), 'maps': entries, 'mergeable': mergeable,
-             'components': comps,
-             'overlap': dict(OVERLAP, definition=OVERLAP_DEFINITION, shared_m2=ov['shared_m2'],
-                             fraction=ov['fraction'])}
-    # truth.json last: its presence means the scenario is complete (bench_merge caches on it)
-    with open(os.path.join(out_dir, name, 'truth.json'), 'w') as f:
-        json.dump(truth, f, indent=1)
-        f.write('\n')
-    return truth
+    return write_truth(out_dir, name, spec['kind'], spec['world_seed'], 'generated', world, max_range, entries,
+                       mergeable, comps, ov)
 
 
 def linked_healthy(truth: dict) -> List[int]:
