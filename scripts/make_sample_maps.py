@@ -165,36 +165,36 @@ def overlap_stats(maps: List[Grid], poses: List[Sequence[float]], world: Grid) -
     return {'shared_m2': shared, 'fraction': frac, 'components': comps}
 
 
+def save_robot_map(grid: Grid, i: int, start: Tuple[float, float, float], path: List[Tuple], name: str, out_dir: str,
+                   preview: str, broken_deg: Optional[float] = None, alt_poses: Sequence = ()) -> dict:
+    """Write robot i's map as <out_dir>/<name>/map_NN.yaml/.pgm (and its preview) and return its truth.json entry
+    (`mergeable` is added once every map is known); broken_deg: the map is broken, turned by this after its break."""
+    fname = f'map_{i:02d}.yaml'
+    save_map(grid, os.path.join(out_dir, name, fname[:-5]))
+    if preview:
+        save_png(grid, os.path.join(preview, f'{name}_{fname[:-5]}.png'))
+    length = sum(math.dist(a[:2], b[:2]) for a, b in zip(path[:-1], path[1:]))
+    return {'file': fname, 'pose': [round(start[0], 6), round(start[1], 6), round(start[2], 6)],
+            'resolution': RES, 'size': [grid.width, grid.height], 'canvas': False, 'broken': broken_deg is not None,
+            'broken_deg': broken_deg if broken_deg is not None else 0.0,
+            'alt_poses': [[round(float(v), 6) for v in a] for a in alt_poses], 'drift_max_m': 0.0,
+            'path_length_m': round(length, 2), 'n_scans': len(path),
+            'known_area_m2': round(float(grid.known_mask().sum()) * RES * RES, 2), 'known_bbox': known_bbox(grid)}
+
+
 def make_scenario(name: str, spec: dict, world: Grid, out_dir: str, preview: str) -> dict:
-    occ = obstacle_mask(world)
-    radius = int(round(CLEARANCE_M / RES))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
-    free = cv2.erode((~occ).astype(np.uint8), k, borderValue=0).astype(bool)
+    occ, free = free_with_clearance(world)
     rng = np.random.default_rng(zlib.crc32(name.encode()))   # stable per scenario, unlike hash()
-    angles = beam_angles(LASER['n_beams'])
     max_range = spec['max_range']
     os.makedirs(os.path.join(out_dir, name), exist_ok=True)
     maps, poses, entries = [], [], []
     for i, (sx, sy, syaw, goals) in enumerate(spec['robots']):
         start = (sx, sy, math.radians(syaw))
         path = drive(free, start, goals, RES)
-        mapper = LogOddsMap(RES)
-        for p in path:
-            ranges = cast(occ, RES, p, LASER['n_beams'], max_range, rng, LASER['sigma'], LASER['dropout'])
-            mapper.integrate(relative_pose(start, p), ranges, angles, max_range)
-        grid = crop_known(mapper.to_grid(frame_id=f'robot{i + 1}/map'))
-        fname = f'map_{i:02d}.yaml'
-        save_map(grid, os.path.join(out_dir, name, fname[:-5]))
-        if preview:
-            save_png(grid, os.path.join(preview, f'{name}_{fname[:-5]}.png'))
-        length = sum(math.dist(a[:2], b[:2]) for a, b in zip(path[:-1], path[1:]))
+        grid = crop_known(map_robot(occ, path, max_range, rng)[0].to_grid(frame_id=f'robot{i + 1}/map'))
+        entries.append(save_robot_map(grid, i, start, path, name, out_dir, preview))
         maps.append(grid)
         poses.append(start)
-        entries.append({'file': fname, 'pose': [round(sx, 6), round(sy, 6), round(math.radians(syaw), 6)],
-                        'resolution': RES, 'size': [grid.width, grid.height], 'canvas': False, 'broken': False,
-                        'broken_deg': 0.0, 'alt_poses': [], 'drift_max_m': 0.0, 'path_length_m': round(length, 2),
-                        'n_scans': len(path), 'known_area_m2': round(float(grid.known_mask().sum()) * RES * RES, 2),
-                        'known_bbox': known_bbox(grid)})
     ov = overlap_stats(maps, poses, world)
     mergeable = ov['components'][0] if ov['components'] else []
     for i, e in enumerate(entries):
@@ -363,22 +363,12 @@ def make_generated(name: str, spec: dict, out_dir: str, preview: str) -> dict:
         path = drive(free, start, goals, RES)
         mapper, d = map_robot(occ, path, max_range, noise, breaks.get(i))
         grid = crop_known(mapper.to_grid(frame_id=f'robot{i + 1}/map'))
-        fname = f'map_{i:02d}.yaml'
-        save_map(grid, os.path.join(out_dir, name, fname[:-5]))
-        if preview:
-            save_png(grid, os.path.join(preview, f'{name}_{fname[:-5]}.png'))
         # the map frame's pose that fits the part after the break: world = start ∘ D^-1 ∘ (corrupted map)
         alt = [compose(start, relative_pose(d, (0.0, 0.0, 0.0)))] if i in breaks else []
-        length = sum(math.dist(a[:2], b[:2]) for a, b in zip(path[:-1], path[1:]))
+        entries.append(save_robot_map(grid, i, start, path, name, out_dir, preview,
+                                      breaks[i][1] if i in breaks else None, alt))
         maps.append(grid)
         poses.append(start)
-        entries.append({'file': fname, 'pose': [round(sx, 6), round(sy, 6), round(math.radians(syaw), 6)],
-                        'resolution': RES, 'size': [grid.width, grid.height], 'canvas': False,
-                        'broken': i in breaks, 'broken_deg': breaks[i][1] if i in breaks else 0.0,
-                        'alt_poses': [[round(float(v), 6) for v in a] for a in alt], 'drift_max_m': 0.0,
-                        'path_length_m': round(length, 2), 'n_scans': len(path),
-                        'known_area_m2': round(float(grid.known_mask().sum()) * RES * RES, 2),
-                        'known_bbox': known_bbox(grid)})
     # shared area of a broken map is counted at its main pose; broken maps are left out of the components
     ov = overlap_stats(maps, poses, world)
     comps = healthy_components(maps, poses, world, sorted(breaks))

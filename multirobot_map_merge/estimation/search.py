@@ -92,7 +92,7 @@ def _fft_shape(h: int, w: int) -> Tuple[int, int]:
     return cv2.getOptimalDFTSize(h), cv2.getOptimalDFTSize(w)
 
 
-def _spectrum(image: np.ndarray, shape: Tuple[int, int], rows: int) -> np.ndarray:
+def _spectrum(image: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
     """The DFT (packed CCS) of `image` zero-padded at the bottom and right to `shape`."""
     padded = np.zeros(shape, np.float32)
     padded[:image.shape[0], :image.shape[1]] = image
@@ -111,9 +111,10 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     diag = int(math.ceil(math.hypot(hi, wi)))
     shape = _fft_shape(diag + hj, diag + wj)
     size = (shape[1], shape[0])
-    # OpenCV's DFT in float32 (packed CCS spectra): several times faster than numpy's, and it releases the GIL.
+    # OpenCV's DFT in float32 (packed CCS spectra): a search 1.2-1.6 times faster than with numpy's FFT, and it
+    # releases the GIL
     # score = correlation of i's walls and open floor with the terms of j they are weighed against
-    fwj, foj = _spectrum(cj.walls, shape, hj), _spectrum(cj.open, shape, hj)
+    fwj, foj = _spectrum(cj.walls, shape), _spectrum(cj.open, shape)
     against_walls = fwj - penalty * foj
     against_open = free_reward * foj - penalty * fwj
     centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
