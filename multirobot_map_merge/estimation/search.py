@@ -110,7 +110,7 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     hj, wj = cj.walls.shape
     diag = int(math.ceil(math.hypot(hi, wi)))
     shape = _fft_shape(diag + hj, diag + wj)
-    size = (shape[1], shape[0])
+    corner = diag + 1   # the turned grid's pixels lie within the top-left corner x corner of the canvas
     # OpenCV's DFT in float32 (packed CCS spectra): a search 1.2-1.6 times faster than with numpy's FFT, and it
     # releases the GIL
     # score = correlation of i's walls and open floor with the terms of j they are weighed against
@@ -119,6 +119,8 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     against_open = free_reward * foj - penalty * fwj
     centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
     found = []
+    floor = -math.inf   # the keep-th best score found so far
+    canvas = np.zeros(shape, np.float32)
     k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
     k_inv = np.linalg.inv(k)
     for angle in rotation_candidates(ci, cj, sweep_degrees):
@@ -126,13 +128,16 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
         # turn about the centre into the top-left diag x diag corner of a zero canvas of the DFT's size
         m = np.array([[c, -s, 0.0], [s, c, 0.0]])
         m[:, 2] = diag / 2.0 - m[:, :2] @ centre
-        wr = cv2.warpAffine(ci.walls, m, size, flags=cv2.INTER_NEAREST)
-        if cv2.countNonZero(wr) < 5:
+        # the turned grid lies within the corner: warped there alone, the rest of the canvas stays zero
+        canvas[:corner, :corner] = cv2.warpAffine(ci.walls, m, (corner, corner), flags=cv2.INTER_NEAREST)
+        if cv2.countNonZero(canvas[:corner, :corner]) < 5:
             continue
-        orr = cv2.warpAffine(ci.open, m, size, flags=cv2.INTER_NEAREST)
-        spectrum = cv2.mulSpectrums(against_walls, cv2.dft(wr), 0, conjB=True)
-        spectrum += cv2.mulSpectrums(against_open, cv2.dft(orr), 0, conjB=True)
+        spectrum = cv2.mulSpectrums(against_walls, cv2.dft(canvas), 0, conjB=True)
+        canvas[:corner, :corner] = cv2.warpAffine(ci.open, m, (corner, corner), flags=cv2.INTER_NEAREST)
+        spectrum += cv2.mulSpectrums(against_open, cv2.dft(canvas), 0, conjB=True)
         score = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        if len(found) >= keep and cv2.minMaxLoc(score)[1] <= floor:
+            continue   # no peak of this angle can rank among the best `keep`
         # local maxima, best first
         peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
         ys, xs = np.nonzero(peaks)
@@ -153,5 +158,7 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
             taken += 1
             if taken >= peaks_per_angle:
                 break
+        if taken and len(found) >= keep:
+            floor = sorted((st[0] for st in found), reverse=True)[keep - 1]
     found.sort(key=lambda st: st[0], reverse=True)
     return [k @ t @ k_inv for _, t in found[:keep]]
