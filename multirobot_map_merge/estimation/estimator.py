@@ -49,6 +49,38 @@ def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSett
     return max(min(res), settings.min_work_resolution) if res else settings.min_work_resolution
 
 
+def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -> List[Group]:
+    """Groups formed by descriptors, grown by the correlation search: the largest one searches the grids left
+    alone (smallest first), merges with the other groups and then tries the members of those that did not merge one
+    by one; while the grids outside it could still form a larger group, the largest of those does the same with
+    the rest."""
+    done: List[Group] = []
+    while groups:
+        groups.sort(key=lambda g: (-len(g.members), reference not in g.members))
+        main = groups[0]
+        if done and len(main.members) + sum(len(g.members) for g in groups[1:]) <= len(done[0].members):
+            break   # all of them together could not outnumber the merge
+        # once the merge holds most grids, one that overlaps a group but contradicts it (a map broken by a SLAM
+        # failure) seeds no other group
+        majority = done and 2 * len(done[0].members) > grower.total
+        alone = [g.seed for g in groups[1:] if len(g.members) == 1
+                 and not (majority and g.seed in grower.contradicting)]
+        others = [g for g in groups[1:] if len(g.members) > 1]
+        grower.grow(main, alone)
+        merged = grower.merge_groups([main] + others, alone)
+        merged.sort(key=lambda g: -len(g.members))
+        main = merged[0]
+        if len(merged) > 1:
+            # a group that cannot join as a whole may hold a map that contradicts the merge (a broken map that
+            # paired by descriptors with a map whose part it shares): its members are tried one by one
+            alone += [k for g in merged[1:] for k in g.members]
+            grower.grow(main, alone)
+        done.append(main)
+        done.sort(key=lambda g: -len(g.members))
+        groups = [grower.group(k, settle=False) for k in alone]
+    return done + groups
+
+
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
              preferred_reference: Optional[int] = None,
              previous: Optional[Sequence[Optional[np.ndarray]]] = None,
@@ -83,21 +115,16 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
         tracked = len(groups[0].members) - 1 if groups else 0
         placed = {k for g in groups for k in g.members}
         unplaced = sorted((k for k in present if k not in placed), key=lambda k: -prepared[k].known_pixels)
+        # descriptors first (cheap): every grid joins a group or seeds one
         if groups:
-            grower.grow(groups[0], unplaced)
+            grower.grow(groups[0], unplaced, search=False)
         while unplaced:
-            if groups and 2 * len(groups[0].members) > len(present):
-                # the first group will be the merge: a grid that overlaps it but contradicts it cannot join it,
-                # whatever group it would form with others (a map broken by a SLAM failure): set it aside
-                unplaced[:] = [k for k in unplaced if k not in grower.contradicting]
-                if not unplaced:
-                    break
             seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
             unplaced.remove(seed)
             group = grower.group(seed)
-            grower.grow(group, unplaced)
+            grower.grow(group, unplaced, search=False)
             groups.append(group)
-        groups = grower.merge_groups(groups, unplaced)
+        groups = search_grow(grower, groups, preferred_reference)
 
     chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
     # the merged frame is the frame of the chosen group's seed

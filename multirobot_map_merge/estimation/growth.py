@@ -96,9 +96,10 @@ class Grower:
         self.memory.keypoints.put(name, (self.grids[k], points, descriptors))
         return points, descriptors
 
-    def group(self, seed: int) -> Group:
-        """A new group of the seed alone (the seed counts as settled)."""
-        self._settle(1)
+    def group(self, seed: int, settle: bool = True) -> Group:
+        """A new group of the seed alone (the seed counts as settled unless it was already)."""
+        if settle:
+            self._settle(1)
         return Group(seed, self.grids[seed], self.prepared[seed], self.res, self.keypoints_of)
 
     def tracked_group(self, reference: int, kept: Dict[int, np.ndarray], checks: Sequence) -> Group:
@@ -119,8 +120,9 @@ class Grower:
         return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
                           onto_union=len(group.members) > 1, descriptors=not search)
 
-    def grow(self, group: Group, unplaced: List[int]) -> None:
-        """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union."""
+    def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
+        """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
+        search=False, by descriptors alone)."""
         while unplaced:
             batch = [k for k in unplaced if self._worth_matching(k, group)]
             if batch:
@@ -136,7 +138,7 @@ class Grower:
                                               (self.grids[m.i], known, m.i in self.contradicting))
                 if added:
                     continue
-            if not self._search(group, unplaced):
+            if not search or not self._search(group, unplaced):
                 return
 
     def _worth_matching(self, k: int, group: Group) -> bool:
@@ -184,15 +186,16 @@ class Grower:
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
             if self.search_seconds >= self.s.search_budget_s:
                 return False   # the others are searched in a later estimation (their memory is not updated)
-            key = (self.names[k], members)
+            key = (self.names[k], self.names[group.seed])
             last = self.memory.searches.get(key)
-            if last is not None and unchanged(last[0], self.grids[k]) and known < SEARCH_GROWTH * last[1]:
+            if last is not None and unchanged(last[0], self.grids[k]) and members >= last[2] \
+                    and known < SEARCH_GROWTH * last[1]:
                 continue   # searched before (maybe in an earlier estimation), and neither has changed much since
             refused = self.refused.get(k)
             if refused is not None and refused.j == group.seed \
                     and overlap_found(refused.best, self.s, len(group.members) > 1):
                 continue   # the descriptors found the overlap and the maps disagree there
-            self.memory.searches.put(key, (self.grids[k], known))
+            self.memory.searches.put(key, (self.grids[k], known, members))
             started = time.perf_counter()
             m = self.match(k, group, search=True)
             self.search_seconds += time.perf_counter() - started

@@ -87,7 +87,7 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     models = correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees, peaks_per_angle=4,
                                   keep=keep, penalty=s.search_penalty,
                                   free_reward=s.search_free_reward,
-                                  wanted=lambda model: distinct(model, best.transform, pi, s))
+                                  wanted=lambda model: distinct(model, best.transform, pi, s), threads=s.threads)
     for model in models:
         if quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
             continue
@@ -168,7 +168,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # not when the overlap was found and the maps contradict there (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,
                                                       keep=s.search_keep, penalty=s.search_penalty,
-                                                      free_reward=s.search_free_reward))
+                                                      free_reward=s.search_free_reward, threads=s.threads))
         best = max(candidates, key=rank, default=None)
     if best is None:
         result.reason = 'no rigid model'

@@ -13,8 +13,9 @@ accepted.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -102,39 +103,59 @@ def _spectrum(image: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
 def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sweep_degrees: float = 3.0,
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
                          free_reward: float = FREE_REWARD,
-                         wanted: Optional[Callable[[np.ndarray], bool]] = None) -> List[np.ndarray]:
+                         wanted: Optional[Callable[[np.ndarray], bool]] = None, threads: int = 1) -> List[np.ndarray]:
     """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
-    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle."""
+    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle. The angles
+    are shared among `threads` threads (OpenCV's DFT releases the GIL: 1.8 times faster on two cores)."""
     ci, cj = coarse(pi, factor), coarse(pj, factor)
     hi, wi = ci.walls.shape
     hj, wj = cj.walls.shape
     diag = int(math.ceil(math.hypot(hi, wi)))
     shape = _fft_shape(diag + hj, diag + wj)
-    corner = diag + 1   # the turned grid's pixels lie within the top-left corner x corner of the canvas
-    # OpenCV's DFT in float32 (packed CCS spectra): a search 1.2-1.6 times faster than with numpy's FFT, and it
-    # releases the GIL
+    # OpenCV's DFT in float32 (packed CCS spectra): a search 1.2-1.6 times faster than with numpy's FFT
     # score = correlation of i's walls and open floor with the terms of j they are weighed against
     fwj, foj = _spectrum(cj.walls, shape), _spectrum(cj.open, shape)
-    against_walls = fwj - penalty * foj
-    against_open = free_reward * foj - penalty * fwj
-    centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
-    found = []
-    floor = -math.inf   # the keep-th best score found so far
-    canvas = np.zeros(shape, np.float32)
+    against = (fwj - penalty * foj, free_reward * foj - penalty * fwj)
     k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
     k_inv = np.linalg.inv(k)
-    for angle in rotation_candidates(ci, cj, sweep_degrees):
+    angles = rotation_candidates(ci, cj, sweep_degrees)
+
+    def best_of(some: List[float]) -> List[Tuple[float, np.ndarray]]:
+        return _best_peaks(ci, against, shape, diag, some, peaks_per_angle, keep,
+                           None if wanted is None else (lambda t: wanted(k @ t @ k_inv)))
+
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            found = [f for part in pool.map(best_of, [angles[n::threads] for n in range(threads)]) for f in part]
+    else:
+        found = best_of(angles)
+    found.sort(key=lambda st: st[0], reverse=True)
+    return [k @ t @ k_inv for _, t in found[:keep]]
+
+
+def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: Tuple[int, int], diag: int,
+                angles: Sequence[float], peaks_per_angle: int, keep: int,
+                wanted: Optional[Callable[[np.ndarray], bool]]) -> List[Tuple[float, np.ndarray]]:
+    """(score, coarse transform i -> j) of the best peaks over `angles`: `peaks_per_angle` at most per angle, and
+    all that can rank among the best `keep`."""
+    hi, wi = ci.walls.shape
+    centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
+    corner = diag + 1   # the turned grid's pixels lie within the top-left corner x corner of the canvas
+    canvas = np.zeros(shape, np.float32)
+    found: List[Tuple[float, np.ndarray]] = []
+    floor = -math.inf   # the keep-th best score found so far
+    for angle in angles:
         c, s = math.cos(angle), math.sin(angle)
-        # turn about the centre into the top-left diag x diag corner of a zero canvas of the DFT's size
+        # turn about the centre into the top-left corner of a zero canvas of the DFT's size; warped there alone,
+        # the rest of the canvas stays zero
         m = np.array([[c, -s, 0.0], [s, c, 0.0]])
         m[:, 2] = diag / 2.0 - m[:, :2] @ centre
-        # the turned grid lies within the corner: warped there alone, the rest of the canvas stays zero
         canvas[:corner, :corner] = cv2.warpAffine(ci.walls, m, (corner, corner), flags=cv2.INTER_NEAREST)
         if cv2.countNonZero(canvas[:corner, :corner]) < 5:
             continue
-        spectrum = cv2.mulSpectrums(against_walls, cv2.dft(canvas), 0, conjB=True)
+        spectrum = cv2.mulSpectrums(against[0], cv2.dft(canvas), 0, conjB=True)
         canvas[:corner, :corner] = cv2.warpAffine(ci.open, m, (corner, corner), flags=cv2.INTER_NEAREST)
-        spectrum += cv2.mulSpectrums(against_open, cv2.dft(canvas), 0, conjB=True)
+        spectrum += cv2.mulSpectrums(against[1], cv2.dft(canvas), 0, conjB=True)
         score = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
         if len(found) >= keep and cv2.minMaxLoc(score)[1] <= floor:
             continue   # no peak of this angle can rank among the best `keep`
@@ -152,7 +173,7 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
             t = np.eye(3)
             t[:2] = m
             t[:2, 2] += (dx, dy)
-            if wanted is not None and not wanted(k @ t @ k_inv):
+            if wanted is not None and not wanted(t):
                 continue
             found.append((float(score[y, x]), t))
             taken += 1
@@ -160,5 +181,4 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
                 break
         if taken and len(found) >= keep:
             floor = sorted((st[0] for st in found), reverse=True)[keep - 1]
-    found.sort(key=lambda st: st[0], reverse=True)
-    return [k @ t @ k_inv for _, t in found[:keep]]
+    return found
