@@ -24,6 +24,8 @@ from .features import PreparedGrid
 from .validation import must_not_be_negative
 
 PENALTY = 3.0
+SCREEN_ANGLES = 8   # angles of the coarser screen's best peaks searched at the search's factor
+SCREEN_MIN_PIXELS = 24   # the screen needs both grids this many pixels across at its factor
 FREE_REWARD = 0.3
 
 
@@ -103,10 +105,30 @@ def _spectrum(image: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
 def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sweep_degrees: float = 3.0,
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
                          free_reward: float = FREE_REWARD,
-                         wanted: Optional[Callable[[np.ndarray], bool]] = None, threads: int = 1) -> List[np.ndarray]:
+                         wanted: Optional[Callable[[np.ndarray], bool]] = None, threads: int = 1,
+                         screen_angles: int = SCREEN_ANGLES) -> List[np.ndarray]:
     """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
-    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle. The angles
-    are shared among `threads` threads (OpenCV's DFT releases the GIL: 1.8 times faster on two cores)."""
+    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle.
+
+    Coarse to fine: every angle is correlated at twice the factor first (a quarter of the pixels), and only the
+    `screen_angles` angles of its best peaks again at the factor (0: every angle at the factor); not for grids
+    too small to tell places apart at the coarser factor (SCREEN_MIN_PIXELS; such a search costs little). The
+    angles are shared among `threads` threads (OpenCV's DFT releases the GIL: 1.8 times faster on two cores)."""
+    angles = None
+    if screen_angles > 0 and min(pi.work.shape + pj.work.shape) >= 2 * factor * SCREEN_MIN_PIXELS:
+        screened = _correlate(pi, pj, 2 * factor, sweep_degrees, peaks_per_angle, 2 * screen_angles, penalty,
+                              free_reward, None, threads, None)
+        angles = list(dict.fromkeys(angle for _, _, angle in screened))[:screen_angles]
+    found = _correlate(pi, pj, factor, sweep_degrees, peaks_per_angle, keep, penalty, free_reward, wanted, threads,
+                       angles)
+    return [t for _, t, _ in found]
+
+
+def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: float, peaks_per_angle: int,
+               keep: int, penalty: float, free_reward: float, wanted: Optional[Callable[[np.ndarray], bool]],
+               threads: int, angles: Optional[List[float]]) -> List[Tuple[float, np.ndarray, float]]:
+    """(score, transform i -> j between working pixels, angle) of the `keep` best peaks at `factor`, over the
+    given angles (None: rotation_candidates)."""
     ci, cj = coarse(pi, factor), coarse(pj, factor)
     hi, wi = ci.walls.shape
     hj, wj = cj.walls.shape
@@ -118,31 +140,32 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     against = (fwj - penalty * foj, free_reward * foj - penalty * fwj)
     k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
     k_inv = np.linalg.inv(k)
-    angles = rotation_candidates(ci, cj, sweep_degrees)
+    if angles is None:
+        angles = rotation_candidates(ci, cj, sweep_degrees)
 
-    def best_of(some: List[float]) -> List[Tuple[float, np.ndarray]]:
+    def best_of(some: List[float]) -> List[Tuple[float, np.ndarray, float]]:
         return _best_peaks(ci, against, shape, diag, some, peaks_per_angle, keep,
                            None if wanted is None else (lambda t: wanted(k @ t @ k_inv)))
 
-    if threads > 1:
+    if threads > 1 and len(angles) > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
             found = [f for part in pool.map(best_of, [angles[n::threads] for n in range(threads)]) for f in part]
     else:
         found = best_of(angles)
     found.sort(key=lambda st: st[0], reverse=True)
-    return [k @ t @ k_inv for _, t in found[:keep]]
+    return [(score, k @ t @ k_inv, angle) for score, t, angle in found[:keep]]
 
 
 def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: Tuple[int, int], diag: int,
                 angles: Sequence[float], peaks_per_angle: int, keep: int,
-                wanted: Optional[Callable[[np.ndarray], bool]]) -> List[Tuple[float, np.ndarray]]:
-    """(score, coarse transform i -> j) of the best peaks over `angles`: `peaks_per_angle` at most per angle, and
+                wanted: Optional[Callable[[np.ndarray], bool]]) -> List[Tuple[float, np.ndarray, float]]:
+    """(score, coarse transform i -> j, angle) of the best peaks over `angles`: `peaks_per_angle` at most per angle, and
     all that can rank among the best `keep`."""
     hi, wi = ci.walls.shape
     centre = np.array([(wi - 1) / 2.0, (hi - 1) / 2.0])
     corner = diag + 1   # the turned grid's pixels lie within the top-left corner x corner of the canvas
     canvas = np.zeros(shape, np.float32)
-    found: List[Tuple[float, np.ndarray]] = []
+    found: List[Tuple[float, np.ndarray, float]] = []
     floor = -math.inf   # the keep-th best score found so far
     for angle in angles:
         c, s = math.cos(angle), math.sin(angle)
@@ -175,7 +198,7 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
             t[:2, 2] += (dx, dy)
             if wanted is not None and not wanted(t):
                 continue
-            found.append((float(score[y, x]), t))
+            found.append((float(score[y, x]), t, angle))
             taken += 1
             if taken >= peaks_per_angle:
                 break
