@@ -53,6 +53,7 @@ class PreparedGrid:
     known_depth: np.ndarray = None   # (H, W) float32 distance (pixels) of every pixel to the nearest unknown one
     feature: Optional[str] = None    # the detector describe() runs while keypoints is None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+    derived: dict = field(default_factory=dict, repr=False, compare=False)   # what later stages derive, kept
 
     @property
     def known_pixels(self) -> int:

@@ -52,6 +52,14 @@ class CoarseGrid:
 
 
 def coarse(p: PreparedGrid, factor: int) -> CoarseGrid:
+    """The search's view of a prepared grid, made once per factor (a grid is searched many times)."""
+    key = ('coarse', factor)
+    if key not in p.derived:
+        p.derived[key] = _coarse(p, factor)
+    return p.derived[key]
+
+
+def _coarse(p: PreparedGrid, factor: int) -> CoarseGrid:
     work = p.work
     h, w = work.shape
     size = (max(w // factor, 1), max(h // factor, 1))
@@ -59,7 +67,9 @@ def coarse(p: PreparedGrid, factor: int) -> CoarseGrid:
     walls = cv2.dilate(walls.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
     far = (work == 0) & (p.wall_distance > 2 * factor)
     open_ = (cv2.resize(far.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5).astype(np.float32)
-    direction, strength = wall_direction(work)
+    if 'direction' not in p.derived:
+        p.derived['direction'] = wall_direction(work)
+    direction, strength = p.derived['direction']
     return CoarseGrid(walls, open_ * (1 - walls), factor, direction, strength)
 
 
