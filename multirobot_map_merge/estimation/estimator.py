@@ -3,8 +3,11 @@
 A group starts from a seed (the preferred reference, else the grid with the largest known area) and grows: every
 grid not placed yet is matched against the union of the group, so a grid whose overlap with every single map is too
 small, but with the union large, joins, and each newcomer costs one match against the union, not one per placed map.
-Grids that join no group seed the next group; groups are matched against each other (union against union), and the
-largest group is the merge, in the frame of its seed.
+Cheapest first: descriptors alone form the groups (grids that join none seed the next); then the largest group runs
+the costly correlation search on the grids left alone, smallest first, and is matched against the other groups
+(union against union); members of a group that cannot join as a whole are tried one by one. The largest group is
+the merge, in the frame of its seed. (Searching every grid against every group as it grew cost the 36 generated
+maps 17.5 s, this 6.4 s, with two more maps placed right.)
 
 Tracking (tracking.py): with the transforms of the last estimate (`previous`, same reference), the grids placed
 then are re-checked first; those that still hold form the first group, which the others then join as above.
@@ -62,7 +65,7 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             break   # all of them together could not outnumber the merge
         # once the merge holds most grids, one that overlaps a group but contradicts it (a map broken by a SLAM
         # failure) seeds no other group
-        majority = done and 2 * len(done[0].members) > grower.total
+        majority = bool(done) and 2 * len(done[0].members) > grower.total
         alone = [g.seed for g in groups[1:] if len(g.members) == 1
                  and not (majority and g.seed in grower.contradicting)]
         others = [g for g in groups[1:] if len(g.members) > 1]

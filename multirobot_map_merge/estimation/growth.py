@@ -2,11 +2,12 @@
 
 A group starts from a seed and grows in rounds. In a round every grid not placed yet is matched against the union of
 the group (union.py) by descriptors only, cheap and in parallel; the accepted ones join, and the next round matches
-the rest against the grown union. A round that adds nobody runs the costly correlation search, on the remaining grids
-smallest first. Work whose answer cannot have changed is skipped: a grid is not matched again against a union that
-has not changed where its last match placed it, and, with an EstimationMemory (a live fleet, memory.py), a grid
-whose map has barely changed is not matched or searched again against a union that has barely grown, and members'
-keypoints are kept until their maps grow.
+the rest against the grown union. A round that adds nobody runs the costly correlation search (unless the group grows
+by descriptors only), on the remaining grids smallest first. Work whose answer cannot have changed is skipped: a
+grid is not matched again against a union that has not changed where its last match placed it, nor searched again
+against one that has grown by less than a quarter since (with an EstimationMemory, memory.py, also from one
+estimation of a live fleet to the next while its own map has barely changed); members' keypoints are kept until
+their maps grow.
 """
 from __future__ import annotations
 
