@@ -8,6 +8,7 @@ pipeline owns one EstimationMemory; the offline tool, estimating once, uses none
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from typing import Hashable, Optional, Tuple
 
@@ -19,11 +20,32 @@ GROWTH = 0.2      # share of a map's known cells that may be added before a verd
 REVISION = 0.02   # share of its known cells that may change before a verdict on it is made again
 
 
+_compared: "OrderedDict[Tuple[int, int], tuple]" = OrderedDict()   # (id(before), id(after)) -> (before, after, result)
+_compared_lock = threading.Lock()
+COMPARED = 256   # comparisons kept: one estimation asks about the same two maps several times
+
+
 def changed(before: Grid, after: Grid) -> Tuple[float, float]:
     """(grown, revised): the share of `before`'s known cells that `after` knows in addition, and the share of them
-    whose value changed class (unknown, free, occupied). inf when the two cannot be compared cell by cell."""
+    whose value changed class (unknown, free, occupied). inf when the two cannot be compared cell by cell. Grids are
+    not changed in place once made, so the answer for the same two grid objects is kept (the entry holds both, so
+    that their ids cannot be reused meanwhile)."""
     if before is after:
         return 0.0, 0.0
+    key = (id(before), id(after))
+    with _compared_lock:
+        kept = _compared.get(key)
+    if kept is not None and kept[0] is before and kept[1] is after:
+        return kept[2]
+    result = _changed(before, after)
+    with _compared_lock:
+        _compared[key] = (before, after, result)
+        while len(_compared) > COMPARED:
+            _compared.popitem(last=False)
+    return result
+
+
+def _changed(before: Grid, after: Grid) -> Tuple[float, float]:
     if before.resolution != after.resolution or before.origin[2] != after.origin[2]:
         return math.inf, math.inf
     dx = (before.origin[0] - after.origin[0]) / after.resolution
