@@ -129,6 +129,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
             groups.append(group)
         groups = search_grow(grower, groups, preferred_reference)
 
+    grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
     # the merged frame is the frame of the chosen group's seed
     for k, t in chosen.members.items():

@@ -20,7 +20,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
-from .memory import EstimationMemory, unchanged
+from .memory import EstimationMemory
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
 from .union import UnionMap
@@ -91,7 +91,7 @@ class Grower:
         barely changed: a union needs them for its pooled keypoints, and detection is the costly part."""
         name = self.names[k]
         kept = self.memory.keypoints.get(name)
-        if kept is not None and unchanged(kept[0], self.grids[k]):
+        if kept is not None and self.memory.unchanged(kept[0], self.grids[k]):
             return kept[1], kept[2]
         points, descriptors = map_keypoints(part)
         self.memory.keypoints.put(name, (self.grids[k], points, descriptors))
@@ -150,7 +150,7 @@ class Grower:
         if tried is None:
             last = self.memory.tries.get((self.names[k], frozenset(self.names[m] for m in group.members)))
             # matched in an earlier estimation against these members: again once either has changed enough
-            if last is None or not unchanged(last[0], self.grids[k]) \
+            if last is None or not self.memory.unchanged(last[0], self.grids[k]) \
                     or group.union.known_pixels > MATCH_GROWTH * last[1]:
                 return True
             if last[2]:
@@ -189,7 +189,7 @@ class Grower:
                 return False   # the others are searched in a later estimation (their memory is not updated)
             key = (self.names[k], self.names[group.seed])
             last = self.memory.searches.get(key)
-            if last is not None and unchanged(last[0], self.grids[k]) and members >= last[2] \
+            if last is not None and self.memory.unchanged(last[0], self.grids[k]) and members >= last[2] \
                     and known < SEARCH_GROWTH * last[1]:
                 continue   # searched before (maybe in an earlier estimation), and neither has changed much since
             refused = self.refused.get(k)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
-from typing import Hashable, Optional, Tuple
+from typing import Dict, Hashable, Optional, Tuple
 
 import numpy as np
 
@@ -20,32 +20,11 @@ GROWTH = 0.2      # share of a map's known cells that may be added before a verd
 REVISION = 0.02   # share of its known cells that may change before a verdict on it is made again
 
 
-_compared: "OrderedDict[Tuple[int, int], tuple]" = OrderedDict()   # (id(before), id(after)) -> (before, after, result)
-_compared_lock = threading.Lock()
-COMPARED = 256   # comparisons kept: one estimation asks about the same two maps several times
-
-
 def changed(before: Grid, after: Grid) -> Tuple[float, float]:
     """(grown, revised): the share of `before`'s known cells that `after` knows in addition, and the share of them
-    whose value changed class (unknown, free, occupied). inf when the two cannot be compared cell by cell. Grids are
-    not changed in place once made, so the answer for the same two grid objects is kept (the entry holds both, so
-    that their ids cannot be reused meanwhile)."""
+    whose value changed class (unknown, free, occupied). inf when the two cannot be compared cell by cell."""
     if before is after:
         return 0.0, 0.0
-    key = (id(before), id(after))
-    with _compared_lock:
-        kept = _compared.get(key)
-    if kept is not None and kept[0] is before and kept[1] is after:
-        return kept[2]
-    result = _changed(before, after)
-    with _compared_lock:
-        _compared[key] = (before, after, result)
-        while len(_compared) > COMPARED:
-            _compared.popitem(last=False)
-    return result
-
-
-def _changed(before: Grid, after: Grid) -> Tuple[float, float]:
     if before.resolution != after.resolution or before.origin[2] != after.origin[2]:
         return math.inf, math.inf
     dx = (before.origin[0] - after.origin[0]) / after.resolution
@@ -109,3 +88,25 @@ class EstimationMemory:
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
         self.latest = Store()
+        self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
+        self._compared_lock = threading.Lock()
+
+    def new_estimation(self) -> None:
+        """Forget the last estimation's comparisons (they hold its maps)."""
+        with self._compared_lock:
+            self._compared = {}
+
+    def unchanged(self, before: Optional[Grid], after: Grid) -> bool:
+        """unchanged(), kept for the same two map objects until the next estimation: one estimation asks about
+        the same two maps several times, and maps are not changed in place (a robot's update makes a new one)."""
+        if before is None:
+            return False
+        key = (id(before), id(after))
+        with self._compared_lock:
+            kept = self._compared.get(key)
+        if kept is not None and kept[0] is before and kept[1] is after:
+            return kept[2]
+        result = unchanged(before, after)
+        with self._compared_lock:
+            self._compared[key] = (before, after, result)   # holding both: their ids are not reused meanwhile
+        return result
