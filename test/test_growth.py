@@ -225,3 +225,21 @@ def test_a_search_candidate_that_icp_leaves_half_a_metre_off_is_polished_into_pl
     monkeypatch.setattr(pair, 'RESCUE_PLACES', 0)
     unpolished = match_pair(0, 1, u['c'], u['a'], s, onto_union=True, descriptors=False, between_groups=True)
     assert not unpolished.accepted and 'agreement' in unpolished.reason
+
+
+def test_a_grid_blind_to_a_union_is_matched_again_only_for_new_members_its_descriptors_agree_with(repo_root):
+    """A grid whose descriptors found no candidate on a union is matched against it again only when a new member's
+    descriptors hold a rigid model with its own: two overlapping sample maps do, a map of random walls with none."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from multirobot_map_merge.estimation.growth import Grower
+    grids, _ = _sample(repo_root, 'three_robots')
+    rng = np.random.default_rng(3)
+    noise = np.where(rng.random(grids[0].data.shape) < 0.02, 100, 0).astype(np.int8)
+    grids = [grids[0], grids[1], Grid(noise, grids[0].resolution, grids[0].origin)]
+    s = EstimationSettings()
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    with ThreadPoolExecutor(2) as pool:
+        grower = Grower(grids, prepared, 0.05, s, pool, None, None)
+        assert grower._descriptors_agree(0, 1)
+        assert not any(grower._descriptors_agree(a, b) for a, b in ((0, 2), (2, 0), (1, 2), (2, 1)))
