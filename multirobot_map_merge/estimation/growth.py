@@ -22,8 +22,8 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
-from .memory import EstimationMemory
 from .hypotheses import putative_matches, ransac_rigid
+from .memory import EstimationMemory
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
 from .union import UnionMap
@@ -83,7 +83,7 @@ class Grower:
         self.total = sum(p is not None for p in prepared)
         self.tried: Dict[tuple, int] = {}       # (grid, group id) -> union version of the last descriptor match
         self.blind: Dict[tuple, frozenset] = {}  # (grid, group id) -> members when its last match found no candidate
-        self.paired: Dict[tuple, bool] = {}     # (grid, grid) -> whether their descriptors agree on a rigid model
+        self.agreeing: Dict[tuple, bool] = {}   # (grid, grid) -> whether their descriptors agree on a rigid model
         self.memory = memory if memory is not None else EstimationMemory()   # one estimation's own, offline
         self.names = list(names) if names is not None else list(range(len(prepared)))
         self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
@@ -180,7 +180,7 @@ class Grower:
 
     def _descriptors_agree(self, k: int, m: int) -> bool:
         """Whether the putative descriptor matches of grid k with grid m hold a rigid model with enough inliers."""
-        if (k, m) not in self.paired:
+        if (k, m) not in self.agreeing:
             pk, pm = self.prepared[k], self.prepared[m]
             pairs = putative_matches(pk, pm, self.s.ratio, False)
             agree = False
@@ -189,8 +189,8 @@ class Grower:
                 model, mask = ransac_rigid(pk.keypoints[pairs[:, 0]], pm.keypoints[pairs[:, 1]],
                                            self.s.ransac_threshold, self.s.ransac_iterations, rng)
                 agree = model is not None and int(mask.sum()) >= self.s.min_inliers
-            self.paired[(k, m)] = agree
-        return self.paired[(k, m)]
+            self.agreeing[(k, m)] = agree
+        return self.agreeing[(k, m)]
 
     def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
         added = False

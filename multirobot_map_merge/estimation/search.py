@@ -24,9 +24,9 @@ from .features import PreparedGrid
 from .validation import must_not_be_negative
 
 PENALTY = 3.0
-SCREEN_ANGLES = 8   # angles of the coarser screen's best peaks searched at the search's factor
-SCREEN_MIN_PIXELS = 24   # the screen needs both grids this many pixels across at its factor
 FREE_REWARD = 0.3
+SCREEN_ANGLES = 8        # angles of the coarser screen's best peaks searched at the search's factor
+SCREEN_MIN_PIXELS = 24   # the screen needs both grids this many pixels across at its factor
 
 
 @dataclass
