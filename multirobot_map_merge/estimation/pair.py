@@ -2,12 +2,13 @@
 
 For a pair (i, j): rigid hypotheses from descriptor matches (hypotheses.py), or from a correlation search when
 they find no plausible placement (search.py); each screened, refined by ICP (refine.py) and verified (verify.py);
-the best one turned by quarter turns to look for a symmetric alias, polished when its common area is small
-(polish.py), then judged by the acceptance rules, with ambiguity (another distinct placement nearly as good) and the
-original's confidence threshold last.
+ICP results at one place are verified once (refine.same_place); the best one turned by quarter turns to look for a
+symmetric alias, polished (polish.py; so is a near miss), then judged by the acceptance rules, with ambiguity
+(another distinct placement nearly as good) and the original's confidence threshold last.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from .. import transforms as tf
 from .features import PreparedGrid
 from .hypotheses import hypotheses, putative_matches, quick_agreement
 from .polish import polish
-from .refine import icp
+from .refine import icp, same_place
 from .search import correlate_candidates
 from .verify import Placement, distinct, overlap_found, pair_confidence, plausible, refusal, verify
 
@@ -32,6 +33,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.pair')
 POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished, the best kept
 LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in before it is screened
 RESCUE_PLACES = 3       # distinct places polished when no candidate is plausible (see rescued)
+NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
 
 @dataclass
@@ -137,6 +139,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
+    verified: List[Placement] = []   # one per place ICP reached
 
     def refine(model: np.ndarray, screen: bool = True) -> Optional[Placement]:
         if screen and quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
@@ -146,7 +149,15 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
             model = icp(pi, pj, model, light, rng)
             if quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
                 return None
-        return verify(pi, pj, icp(pi, pj, model, s, rng), s)
+        # RANSAC's next hypothesis is often the first again, from the matches its inlier threshold left out, and
+        # search candidates of one place are many: their ICP stops where an earlier one ended, and they take its
+        # verification (they still count as estimates of that place for the polish)
+        model = icp(pi, pj, model, s, rng, [c.transform for c in verified])
+        twin = next((c for c in verified if same_place(model, c.transform, pi)), None)
+        if twin is not None:
+            return dataclasses.replace(twin, transform=model)
+        verified.append(verify(pi, pj, model, s))
+        return verified[-1]
 
     def refine_all(models, screen: bool = True) -> List[Placement]:
         return [c for c in (refine(m, screen) for m in models) if c is not None]
@@ -176,6 +187,16 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     if between_groups and s.polish and not plausible(best, s):
         candidates += rescued(pi, pj, candidates, s, rng)
         best = max(candidates, key=rank)
+    elif s.polish and not plausible(best, s):
+        # a near miss: on a small common area (or onto a union) ICP can stop a pixel off, where thin walls miss
+        # each other and contradict; polished, it is judged again (ICP from the other estimates of that place, which
+        # might have landed closer, stopped once they reached it)
+        near = max((c for c in candidates if plausible(c, s.replace(**NEAR_MISS))), key=lambda c: c.agreement,
+                   default=None)
+        polished = verify(pi, pj, polish(pi, pj, [near.transform], rng), s) if near is not None else None
+        if polished is not None and plausible(polished, s):
+            candidates.append(polished)
+            best = polished
     if plausible(best, s):
         # only worth the extra work for a placement that could be accepted
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
@@ -185,7 +206,11 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # other plausible estimates of the same place are polished too, and the most consistent result is kept
         same = [c.transform for c in candidates[1:] if plausible(c, s)
                 and not distinct(c.transform, candidates[0].transform, pi, s)][:POLISH_STARTS - 1]
-        polished = verify(pi, pj, polish(pi, pj, [candidates[0].transform] + same, rng), s)
+        starts = [candidates[0].transform]
+        for t in same:
+            if not any(same_place(t, u, pi) for u in starts):
+                starts.append(t)
+        polished = verify(pi, pj, polish(pi, pj, starts, rng), s)
         candidates[0] = polished if plausible(polished, s) else candidates[0]
     best = candidates[0]
     result.best = best

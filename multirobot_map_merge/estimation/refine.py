@@ -7,7 +7,7 @@ minimum, so plausible placements are polished afterwards (polish.py).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -31,9 +31,21 @@ class RefineSettings:
         must_be_positive(self, 'icp_iterations', 'icp_max_points')
 
 
+SAME_PLACE_PX = 1.0     # placements that move no corner of grid i further apart than this are one estimate
+
+
+def same_place(a: np.ndarray, b: np.ndarray, pi: PreparedGrid) -> bool:
+    """Whether two placements of grid i (pixel transforms) are one estimate: no corner of i lands SAME_PLACE_PX
+    pixels apart."""
+    h, w = pi.work.shape
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+    return tf.difference(a, b, corners)[1] < SAME_PLACE_PX
+
+
 def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSettings,
-        rng: np.random.Generator) -> np.ndarray:
-    """Refine a pixel transform i -> j by point-to-point ICP of i's walls onto j's nearest walls."""
+        rng: np.random.Generator, reached: Sequence[np.ndarray] = ()) -> np.ndarray:
+    """Refine a pixel transform i -> j by point-to-point ICP of i's walls onto j's nearest walls; stop after a
+    level that ends at the same place as one of the placements `reached` (ICP from there ends where they did)."""
     src, src_side = pi.walls, pi.wall_normals
     if len(src) > s.icp_max_points:
         pick = rng.choice(len(src), s.icp_max_points, replace=False)
@@ -63,4 +75,6 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
             model = step @ model
             if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
                 break
+        if any(same_place(model, t, pi) for t in reached):
+            break
     return model
