@@ -33,8 +33,12 @@ class LoopPacer:
         self._ros0, self._wall0 = rospy.get_time(), time.monotonic()
 
     def _elapsed(self) -> float:
-        """Seconds since start_cycle(): ROS time, or wall time while there is none; -1 if ROS time went back."""
+        """Seconds since start_cycle(): ROS time, or wall time while there is none; -1 if ROS time went back. When
+        simulated time starts during a cycle, the period counts from its start: measured on the wall clock it would
+        last `speedup` times longer (the demo's first estimations came 10 sim-s apart instead of 2)."""
         now = rospy.get_time()
+        if self._ros0 <= 0.0 < now:
+            self._ros0 = now
         if self._ros0 > 0.0 and now > 0.0:
             return now - self._ros0 if now >= self._ros0 else -1.0
         return time.monotonic() - self._wall0   # no ROS time yet (sim time, /clock not started)
