@@ -1,6 +1,5 @@
 """The node's loop pacing on simulated time (no ROS master: rospy's clock is set as its /clock callback sets it)."""
 import threading
-import time
 
 import pytest
 
