@@ -125,7 +125,10 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
             seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
             unplaced.remove(seed)
             group = grower.group(seed)
-            grower.grow(group, unplaced, search=False)
+            # as in search_grow: once a group holds most grids, one that overlaps it but contradicts it (a map
+            # broken by a SLAM failure) seeds no group (36 generated maps: half the descriptor matches were such)
+            if not (groups and seed in grower.contradicting and 2 * len(groups[0].members) > grower.total):
+                grower.grow(group, unplaced, search=False)
             groups.append(group)
         groups = search_grow(grower, groups, preferred_reference)
 
