@@ -399,9 +399,14 @@ def test_previous_placement_is_kept_only_while_it_agrees(repo_root):
     if dropped.transforms[1] is not None:
         rot, cells = _corner_error(grids[1], dropped.transforms[1], right)
         assert rot < 1.0 and cells < 3.0, (rot, cells)
-    # another reference means another merged frame: previous placements do not apply
+    # another reference means another merged frame: previous placements do not apply (robot_2 may still be placed
+    # anew there: against robot_3 a near miss of the search polishes to its true place)
     other = estimate(grids, s, preferred_reference=2, previous=previous)
-    assert other.transforms[1] is None and other.tracked == 0
+    assert other.tracked == 0
+    if other.transforms[1] is not None:
+        in_robot_3 = tf.inverse(tf.rigid(*starts['robot_3'])) @ tf.rigid(*starts['robot_2'])
+        rot, cells = _corner_error(grids[1], other.transforms[1], in_robot_3)
+        assert rot < 1.0 and cells < 3.0, (rot, cells)
 
 
 def test_correlation_search_places_a_small_overlap_that_descriptors_miss(repo_root):
