@@ -136,7 +136,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     there (a broken map: a search finds the same). With `between_groups` (i and j are the unions of two groups,
     growth.py), it is. When a search found no candidate that passes, the best places are polished and judged again
     (`rescued`): RESCUE_PLACES of them between groups (few matches), the best one after any other search (ICP slides
-    a small overlap along a corridor: in a replayed demo run a robot was placed 10 sim s sooner; 36 maps: +0.3 s).
+    a small overlap along a corridor: in a replayed demo run a robot was placed 10 sim s sooner).
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
