@@ -64,11 +64,8 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
         main = groups[0]
         if done and len(main.members) + sum(len(g.members) for g in groups[1:]) <= len(done[0].members):
             break   # all of them together could not outnumber the merge
-        # once the merge holds most grids, one that overlaps a group but contradicts it (a map broken by a SLAM
-        # failure) seeds no other group
-        majority = bool(done) and 2 * len(done[0].members) > grower.total
         alone = [g.seed for g in groups[1:] if len(g.members) == 1
-                 and not (majority and g.seed in grower.contradicting)]
+                 and not grower.outcast(g.seed, done[0] if done else None)]
         others = [g for g in groups[1:] if len(g.members) > 1]
         merged = grower.merge_groups([main] + others, alone)
         merged.sort(key=lambda g: -len(g.members))
@@ -126,9 +123,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
             seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
             unplaced.remove(seed)
             group = grower.group(seed)
-            # as in search_grow: once a group holds most grids, one that overlaps it but contradicts it (a map
-            # broken by a SLAM failure) seeds no group (36 generated maps: half the descriptor matches were such)
-            if not (groups and seed in grower.contradicting and 2 * len(groups[0].members) > grower.total):
+            if not grower.outcast(seed, groups[0] if groups else None):
                 grower.grow(group, unplaced, search=False)
             groups.append(group)
         groups = search_grow(grower, groups, preferred_reference)

@@ -152,6 +152,11 @@ class Grower:
             if not search or not self._search(group, unplaced):
                 return
 
+    def outcast(self, k: int, merge: Optional[Group]) -> bool:
+        """Whether grid k seeds no group: once `merge` holds most grids, a grid that overlaps a group but contradicts
+        it (a map broken by a SLAM failure) would only pair with the part it shares with another map."""
+        return merge is not None and 2 * len(merge.members) > self.total and k in self.contradicting
+
     def _worth_matching(self, k: int, group: Group) -> bool:
         """Whether grid k is to be matched against the group's union (again): not if it was matched against this
         union already, nor if its last match found where it overlaps the union (and contradicts it) and the union

@@ -2,7 +2,7 @@
 
 For a pair (i, j): rigid hypotheses from descriptor matches (hypotheses.py), or from a correlation search when
 they find no plausible placement (search.py); each screened, refined by ICP (refine.py) and verified (verify.py);
-ICP results at one place are verified once (refine.same_place); the best one turned by quarter turns to look for a
+ICP results at one place are verified once (verify.same_place); the best one turned by quarter turns to look for a
 symmetric alias, polished (polish.py; so is a near miss), then judged by the acceptance rules, with ambiguity
 (another distinct placement nearly as good) and the original's confidence threshold last.
 """
@@ -21,9 +21,10 @@ from .. import transforms as tf
 from .features import PreparedGrid
 from .hypotheses import hypotheses, putative_matches, quick_agreement
 from .polish import polish
-from .refine import icp, same_place
+from .refine import icp
 from .search import correlate_candidates
-from .verify import Placement, distinct, overlap_found, pair_confidence, plausible, refusal, verify
+from .verify import (Placement, distinct, overlap_found, pair_confidence, plausible, refusal, same_place,
+                     verify)
 
 if TYPE_CHECKING:
     from .settings import EstimationSettings

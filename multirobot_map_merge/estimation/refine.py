@@ -14,6 +14,7 @@ import numpy as np
 from .. import transforms as tf
 from .features import PreparedGrid, opposed
 from .validation import must_be_positive
+from .verify import same_place
 
 if TYPE_CHECKING:
     from .settings import EstimationSettings
@@ -29,17 +30,6 @@ class RefineSettings:
 
     def validate(self) -> None:
         must_be_positive(self, 'icp_iterations', 'icp_max_points')
-
-
-SAME_PLACE_PX = 1.0     # placements that move no corner of grid i further apart than this are one estimate
-
-
-def same_place(a: np.ndarray, b: np.ndarray, pi: PreparedGrid) -> bool:
-    """Whether two placements of grid i (pixel transforms) are one estimate: no corner of i lands SAME_PLACE_PX
-    pixels apart."""
-    h, w = pi.work.shape
-    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
-    return tf.difference(a, b, corners)[1] < SAME_PLACE_PX
 
 
 def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSettings,

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from .settings import EstimationSettings
 
 FOUND_AGREEMENT = 0.6   # see overlap_found
+SAME_PLACE_PX = 1.0     # placements that move no corner of grid i further apart than this are one estimate
 
 
 @dataclass
@@ -167,12 +168,21 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
     return ''
 
 
+def _corners(pi: PreparedGrid) -> np.ndarray:
+    h, w = pi.work.shape
+    return np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+
+
 def distinct(a: np.ndarray, b: np.ndarray, pi: PreparedGrid, s: EstimationSettings) -> bool:
     """Whether two placements (pixel transforms of grid i) are different places, not two estimates of one."""
-    h, w = pi.work.shape
-    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
-    rot, disp = tf.difference(a, b, corners)
+    rot, disp = tf.difference(a, b, _corners(pi))
     return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
+
+
+def same_place(a: np.ndarray, b: np.ndarray, pi: PreparedGrid) -> bool:
+    """Whether two placements of grid i (pixel transforms) are one estimate: no corner of i lands SAME_PLACE_PX
+    pixels apart (ICP from either ends at the same place)."""
+    return tf.difference(a, b, _corners(pi))[1] < SAME_PLACE_PX
 
 
 def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: bool = False) -> bool:
