@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from typing import Callable, Sequence, Tuple
 
+import cv2
 import numpy as np
 
 from .. import transforms as tf
@@ -46,36 +47,24 @@ class _OneWay:
                               & (moved[:, 0] < w + MARGIN) & (moved[:, 1] < h + MARGIN))
         if pick.size > MAX_POINTS:
             pick = rng.choice(pick, MAX_POINTS, replace=False)
-        # coordinates apart and contiguous, fields flattened: a cost 2.5 times faster than on (N, 2) points
-        self.px, self.py = np.ascontiguousarray(src.walls[pick, 0]), np.ascontiguousarray(src.walls[pick, 1])
-        self.dst = dst
-        self.deep_flat = (dst.known_depth > FRINGE).ravel()
-        self.distance_flat = dst.wall_distance.ravel()
+        # one row of float32 points: OpenCV transforms them and reads the fields at them (bilinear, in one call)
+        # 5 times as fast as numpy's indexing
+        self.points = np.ascontiguousarray(src.walls[pick].astype(np.float32).reshape(1, -1, 2))
+        if 'polish' not in dst.derived:   # a union is polished against many times
+            dst.derived['polish'] = ((dst.known_depth > FRINGE).astype(np.float32),
+                                     np.minimum(dst.wall_distance, TAU).astype(np.float32))
+        self.deep, self.distance = dst.derived['polish']
 
     def cost(self, model: np.ndarray) -> Tuple[float, int]:
-        px, py = self.px, self.py
-        x = px * model[0, 0] + py * model[0, 1] + model[0, 2]
-        y = px * model[1, 0] + py * model[1, 1] + model[1, 2]
-        h, w = self.dst.work.shape
-        # within the pixels whose four neighbours right and below exist (bilinear interpolation)
-        inside = np.flatnonzero((x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1))
-        x, y = x[inside], y[inside]
-        keep = np.flatnonzero(self.deep_flat[np.rint(y).astype(np.int64) * w + np.rint(x).astype(np.int64)])
-        if keep.size == 0:
+        if self.points.shape[1] == 0:
             return 0.0, 0
-        d = np.minimum(_bilinear(self.distance_flat, w, x[keep], y[keep]), TAU)
-        return float((d * d).sum()), int(keep.size)
-
-
-def _bilinear(flat: np.ndarray, width: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A field (flattened, rows of `width`) read at (x, y) points between pixels (each with its right and lower
-    neighbours inside the field)."""
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = x - x0, y - y0
-    i = y0.astype(np.int64) * width + x0.astype(np.int64)
-    top = flat[i] * (1.0 - fx) + flat[i + 1] * fx
-    bottom = flat[i + width] * (1.0 - fx) + flat[i + width + 1] * fx
-    return top * (1.0 - fy) + bottom * fy
+        moved = cv2.transform(self.points, model[:2].astype(np.float32))
+        # outside the field: not deep (left out); the distance is interpolated between pixels (1/32 pixel steps)
+        deep = cv2.remap(self.deep, moved, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        d = cv2.remap(self.distance, moved, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=TAU)
+        n = int(np.count_nonzero(deep))
+        return (float(np.dot((d * d).ravel(), deep.ravel())), n) if n else (0.0, 0)
 
 
 def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:

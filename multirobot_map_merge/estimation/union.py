@@ -108,8 +108,18 @@ class UnionMap:
         h, w = old.work.shape
         if dx < 0 or dy < 0 or dy + h > new.work.shape[0] or dx + w > new.work.shape[1]:
             return True
-        under = cv2.warpAffine((part.work >= 0).view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
-        return not np.array_equal(old.work[under], new.work[dy:dy + h, dx:dx + w][under])
+        # only the box the grid lands in (a union is mostly elsewhere)
+        ph, pw = part.work.shape
+        corners = tf.apply(model, np.array([[0, 0], [pw, 0], [0, ph], [pw, ph]], float))
+        x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int) - 1, 0)
+        x1, y1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 1, (w, h))
+        if x1 <= x0 or y1 <= y0:
+            return False
+        box = tf.translation(-x0, -y0) @ model
+        under = cv2.warpAffine((part.work >= 0).view(np.uint8), box[:2], (int(x1 - x0), int(y1 - y0)),
+                               flags=cv2.INTER_NEAREST) > 0
+        return not np.array_equal(old.work[y0:y1, x0:x1][under],
+                                  new.work[dy + y0:dy + y1, dx + x0:dx + x1][under])
 
     def absorb(self, other: 'UnionMap', other_to_self: np.ndarray) -> None:
         """Take every member of another union, placed by `other_to_self` (its frame -> this frame)."""
