@@ -3,8 +3,7 @@
 A group starts from a seed and grows in rounds. In a round every grid not placed yet is matched against the union of
 the group (union.py) by descriptors only, cheap and in parallel; the accepted ones join, and the next round matches
 the rest against the grown union. A round that adds nobody runs the costly correlation search (unless the group grows
-by descriptors only) on the remaining grids. The matches of a round, and the searches, are shared with forked
-children (forked.py: threads ran them only 1.2-1.3 times as fast as one, the GIL held by small numpy steps). Work whose answer cannot have changed is skipped: a
+by descriptors only), on the remaining grids smallest first. Work whose answer cannot have changed is skipped: a
 grid is not matched again against a union that has not changed where its last match placed it, nor, when its
 descriptors found no candidate at all there, against one whose new members' descriptors do not agree on a rigid model
 with its own (the 36 generated maps: 490 matches before, 352 now), nor searched again
@@ -23,7 +22,6 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
-from .forked import forked_map
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
 from .pair import PairMatch, match_pair
@@ -122,10 +120,10 @@ class Grower:
         self._settle(len(group.members) - 1)
         return group
 
-    def match(self, k: int, group: Group, search: bool, settings: Optional[EstimationSettings] = None) -> PairMatch:
+    def match(self, k: int, group: Group, search: bool) -> PairMatch:
         """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
         one is matched as a pair."""
-        return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), settings or self.s, search=search,
+        return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
                           onto_union=len(group.members) > 1, descriptors=not search)
 
     def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
@@ -135,13 +133,10 @@ class Grower:
             batch = [k for k in unplaced if self._worth_matching(k, group)]
             if batch:
                 known = group.union.known_pixels   # prepares the union once, before the workers share it
-                # keypoints detected here (threads: the detector releases the GIL) are kept; a child's would be lost
-                list(self.pool.map(lambda k: self.prepared[k].describe(), batch))
                 members = frozenset(self.names[m] for m in group.members)
                 for k in batch:
                     self.tried[(k, id(group))] = group.union.version
-                results = forked_map(lambda k: self.match(k, group, search=False), batch, self.s.threads,
-                                     cost=lambda k: self.prepared[k].known_pixels)
+                results = list(self.pool.map(lambda k: self.match(k, group, search=False), batch))
                 for m in results:
                     if m.best is None:
                         self.blind[(m.i, id(group))] = frozenset(group.members)
@@ -219,32 +214,29 @@ class Grower:
         return added
 
     def _search(self, group: Group, unplaced: List[int]) -> bool:
-        """The correlation search on the grids the union has grown for since their last search, shared among
-        processes (forked.py), each placed if it passes against the union as it is."""
+        """The correlation search, smallest grid first, on grids the union has grown for since their last search;
+        stops at the first grid it places (the others are matched against the grown union first)."""
         known = group.union.known_pixels
         members = frozenset(self.names[m] for m in group.members)
-        queue = [k for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels)
-                 if self._worth_searching(k, group, known, members)]
-        if not queue or self.search_seconds >= self.s.search_budget_s:
-            return False
-        started = time.perf_counter()
-        one = self.s.replace(threads=1) if len(queue) > 1 else self.s
-        results = forked_map(lambda k: self.match(k, group, search=True, settings=one), queue, self.s.threads,
-                             cost=lambda k: self.prepared[k].known_pixels)
-        self.search_seconds += time.perf_counter() - started
-        for k in queue:
-            self.memory.searches.put((self.names[k], self.names[group.seed]), (self.grids[k], known, members))
-        return self._admit(group, unplaced, results)
-
-    def _worth_searching(self, k: int, group: Group, known: int, members: frozenset) -> bool:
-        last = self.memory.searches.get((self.names[k], self.names[group.seed]))
-        if last is not None and self.memory.unchanged(last[0], self.grids[k]) and members >= last[2] \
-                and known < SEARCH_GROWTH * last[1]:
-            return False   # searched before (maybe in an earlier estimation), and neither has changed much since
-        refused = self.refused.get(k)
-        # not when the descriptors found the overlap and the maps disagree there
-        return refused is None or refused.j != group.seed \
-            or not overlap_found(refused.best, self.s, len(group.members) > 1)
+        for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
+            if self.search_seconds >= self.s.search_budget_s:
+                return False   # the others are searched in a later estimation (their memory is not updated)
+            key = (self.names[k], self.names[group.seed])
+            last = self.memory.searches.get(key)
+            if last is not None and self.memory.unchanged(last[0], self.grids[k]) and members >= last[2] \
+                    and known < SEARCH_GROWTH * last[1]:
+                continue   # searched before (maybe in an earlier estimation), and neither has changed much since
+            refused = self.refused.get(k)
+            if refused is not None and refused.j == group.seed \
+                    and overlap_found(refused.best, self.s, len(group.members) > 1):
+                continue   # the descriptors found the overlap and the maps disagree there
+            self.memory.searches.put(key, (self.grids[k], known, members))
+            started = time.perf_counter()
+            m = self.match(k, group, search=True)
+            self.search_seconds += time.perf_counter() - started
+            if self._admit(group, unplaced, [m]):
+                return True
+        return False
 
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
