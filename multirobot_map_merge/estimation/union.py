@@ -17,6 +17,7 @@ from .. import transforms as tf
 from ..compose import compose
 from ..grid import Grid, crop_to_known
 from .features import PreparedGrid, map_keypoints, pooled_keypoints, prepare
+from .verify import landing_box
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
 HISTORY = 4   # prepared versions of a union kept to tell where it changed
@@ -108,16 +109,12 @@ class UnionMap:
         h, w = old.work.shape
         if dx < 0 or dy < 0 or dy + h > new.work.shape[0] or dx + w > new.work.shape[1]:
             return True
-        # only the box the grid lands in (a union is mostly elsewhere)
-        ph, pw = part.work.shape
-        corners = tf.apply(model, np.array([[0, 0], [pw, 0], [0, ph], [pw, ph]], float))
-        x0, y0 = np.maximum(np.floor(corners.min(axis=0)).astype(int) - 1, 0)
-        x1, y1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int) + 1, (w, h))
-        if x1 <= x0 or y1 <= y0:
+        box = landing_box(part, old, model, 1)   # only where the grid lands (a union is mostly elsewhere)
+        if box is None:
             return False
-        box = tf.translation(-x0, -y0) @ model
-        under = cv2.warpAffine((part.work >= 0).view(np.uint8), box[:2], (int(x1 - x0), int(y1 - y0)),
-                               flags=cv2.INTER_NEAREST) > 0
+        x0, y0, x1, y1 = box
+        under = cv2.warpAffine((part.work >= 0).view(np.uint8), (tf.translation(-x0, -y0) @ model)[:2],
+                               (x1 - x0, y1 - y0), flags=cv2.INTER_NEAREST) > 0
         return not np.array_equal(old.work[y0:y1, x0:x1][under],
                                   new.work[dy + y0:dy + y1, dx + x0:dx + x1][under])
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -80,6 +80,20 @@ def source_pixels(pi: PreparedGrid, model: np.ndarray, xs: np.ndarray, ys: np.nd
     return np.clip(back[:, 0], 0, w - 1), np.clip(back[:, 1], 0, h - 1), inside
 
 
+MARGIN = 8   # pixels around the common known area kept for the distance and side fields
+
+
+def landing_box(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, margin: int) -> Optional[Tuple[int, ...]]:
+    """(x0, y0, x1, y1): the pixels of grid j that grid i covers when placed by `model`, widened by `margin` and
+    clipped to grid j; None if it misses grid j."""
+    h, w = pj.work.shape
+    ph, pw = pi.work.shape
+    corners = tf.apply(model, np.array([[-1.0, -1.0], [pw, -1.0], [-1.0, ph], [pw, ph]]))
+    x0, y0 = (max(int(math.floor(v)) - margin, 0) for v in corners.min(axis=0))
+    x1, y1 = (min(int(math.ceil(v)) + margin + 1, n) for v, n in zip(corners.max(axis=0), (w, h)))
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
     """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j.
 
@@ -89,18 +103,24 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     right placement and does not lower the agreement (fringe_conflicts); one well inside it is rare there
     (deep_conflicts).
     """
-    h, w = pj.work.shape
-    warped = cv2.warpAffine(pi.work.view(np.uint8), model[:2], (w, h), flags=cv2.INTER_NEAREST,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
-    both = (warped >= 0) & (pj.work >= 0)
+    result = Placement(model)
+    # grid i is warped only into the box of j it lands in, with the margin below (a union is mostly elsewhere)
+    box = landing_box(pi, pj, model, MARGIN + 4)
+    if box is None:
+        return result
+    x0, y0, x1, y1 = box
+    warped = cv2.warpAffine(pi.work.view(np.uint8), (tf.translation(-x0, -y0) @ model)[:2], (x1 - x0, y1 - y0),
+                            flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
+    both = (warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0)
     rows, cols = np.nonzero(both)
-    result = Placement(model, overlap_m2=float(rows.size) * pi.resolution ** 2)
+    result.overlap_m2 = float(rows.size) * pi.resolution ** 2
     if rows.size == 0:
         return result
     # everything else only where both maps are known (plus a margin for the distance and side fields)
-    r0, r1 = max(rows.min() - 8, 0), rows.max() + 9
-    c0, c1 = max(cols.min() - 8, 0), cols.max() + 9
-    wi, wj, both = warped[r0:r1, c0:c1], pj.work[r0:r1, c0:c1], both[r0:r1, c0:c1]
+    r0, r1 = max(rows.min() + y0 - MARGIN, 0), rows.max() + y0 + MARGIN + 1
+    c0, c1 = max(cols.min() + x0 - MARGIN, 0), cols.max() + x0 + MARGIN + 1
+    wi = warped[r0 - y0:r1 - y0, c0 - x0:c1 - x0]
+    wj, both = pj.work[r0:r1, c0:c1], both[r0 - y0:r1 - y0, c0 - x0:c1 - x0]
     walls_i = both & (wi >= 50)
     walls_j = both & (wj >= 50)
     n_i, n_j = int(walls_i.sum()), int(walls_j.sum())
