@@ -243,3 +243,38 @@ def test_a_grid_blind_to_a_union_is_matched_again_only_for_new_members_its_descr
         grower = Grower(grids, prepared, 0.05, s, pool, None, None)
         assert grower._descriptors_agree(0, 1)
         assert not any(grower._descriptors_agree(a, b) for a, b in ((0, 2), (2, 0), (1, 2), (2, 1)))
+
+
+def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps(repo_root, monkeypatch):
+    """Tracking checks each placement against the maps near it, so small turns between neighbours can add up; once
+    the maps stop changing, the kept placements are compared once with an estimate afresh from those final maps,
+    which replaces them when it moves one by more than the noise (it places every map they did, same frame)."""
+    from multirobot_map_merge.estimation import estimator, tracking
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grids, poses = _sample(repo_root, 'three_robots')
+    s, memory, names = EstimationSettings(), EstimationMemory(), ['a', 'b', 'c']
+    fresh = estimate(grids, s, preferred_reference=0)
+    runs = []
+    real = estimator._estimate
+    monkeypatch.setattr(estimator, '_estimate', lambda *args: runs.append(args[4] is None) or real(*args))
+    # checks that confirm whatever they are given, as neighbour checks can confirm a chain that turns a little
+    monkeypatch.setattr(tracking, 'recheck', lambda k, grids, prepared, placed, *rest:
+                        tracking.Check(k, placed[k], PairMatch(k, 0, accepted=True)))
+    previous = list(fresh.transforms)
+    previous[2] = tf.rigid(0.0, 0.0, math.radians(1.0)) @ previous[2]   # map c kept 1 degree off
+    kept = estimate(grids, s, preferred_reference=0, previous=previous, memory=memory, names=names)
+    assert runs == [False] and kept.tracked == 2
+    assert np.allclose(kept.transforms[2], previous[2])
+    # the same maps again: they have stopped changing; the estimate afresh runs and replaces the kept placements
+    runs.clear()
+    final = estimate(grids, s, preferred_reference=0, previous=kept.transforms, memory=memory, names=names)
+    assert runs == [False, True] and final.reference == 0
+    for k in range(3):
+        assert np.allclose(final.transforms[k], fresh.transforms[k], atol=1e-9), k
+    rot, dist = _error(final.transforms[2], poses, 2, 0)
+    assert rot < 0.5 and dist < 0.1
+    # only once for these maps
+    runs.clear()
+    again = estimate(grids, s, preferred_reference=0, previous=final.transforms, memory=memory, names=names)
+    assert runs == [False] and np.allclose(again.transforms[2], fresh.transforms[2])

@@ -22,9 +22,10 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from ..grid import Grid
+from .. import transforms as tf
+from ..grid import Grid, crop_to_known
 from ..progress import progress_of
-from .features import FeatureCache
+from .features import FeatureCache, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
@@ -32,6 +33,10 @@ from .settings import EstimationSettings
 from .tracking import track
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
+
+# metres at a map's corners: an estimate afresh from the final maps replaces the kept placements when it moves one
+# by more (or places more maps); below, the two differ by the usual noise and the verdicts on the kept ones stand
+FRESH_MOVE_M = 0.05
 
 
 @dataclass
@@ -90,7 +95,52 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
     (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
     (tracking.py) and only the other grids are searched. `memory` (with `names`, stable names of the grids such as
-    robot namespaces) keeps from one estimation to the next what need not be done again (memory.py)."""
+    robot namespaces) keeps from one estimation to the next what need not be done again (memory.py).
+
+    Once the maps have stopped changing (the same contents as in the last estimation), the placements kept so far
+    are compared once with an estimation afresh from those final maps: tracking checks each placement against the
+    maps near it, so small turns between neighbours can add up along a chain of robots (a live demo ended with one
+    robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
+    robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
+    in the same frame, and moves one of them by more than FRESH_MOVE_M or places more."""
+    contents = [content_key(g) if g is not None else None for g in grids] if memory is not None and names else None
+    settled = contents is not None and previous is not None \
+        and all(memory.latest_inputs.get(n) == c for n, c in zip(names, contents)) \
+        and memory.fresh_inputs != tuple(zip(names, contents))
+    if contents is not None:
+        memory.latest_inputs = dict(zip(names, contents))
+    result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names)
+    if not settled or not result.tracked:
+        return result
+    memory.fresh_inputs = tuple(zip(names, contents))
+    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None)
+    kept = {k for k, t in enumerate(result.transforms) if t is not None}
+    if fresh.reference != result.reference or not kept <= {k for k, t in enumerate(fresh.transforms)
+                                                           if t is not None}:
+        return result
+    moved = max(tf.difference(fresh.transforms[k], result.transforms[k], _corners(grids[k]))[1] for k in kept)
+    placed = sum(t is not None for t in fresh.transforms)
+    if placed == len(kept) and moved <= FRESH_MOVE_M:
+        log.debug('the final maps estimated afresh: the same placements (moved by up to %.3f m)', moved)
+        return result   # the same placements up to the usual noise: the verdicts on them stand
+    log.info('the final maps estimated afresh: %d grids placed (%d before), moved by up to %.2f m at their corners',
+             placed, len(kept), moved)
+    fresh.seconds += result.seconds
+    return fresh
+
+
+def _corners(grid: Grid) -> np.ndarray:
+    """The corners of a grid's known part, metres of its map frame."""
+    box = crop_to_known(grid.data, margin=0)
+    if box is None:
+        return np.zeros((0, 2))
+    r0, r1, c0, c1 = box
+    return tf.apply(grid.cell_to_map(), np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], float))
+
+
+def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
+              preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
+              progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence]) -> Estimate:
     settings.validate()
     progress = progress or progress_of(settings)   # merge_maps attaches its terminal display to the settings
     t0 = time.perf_counter()
