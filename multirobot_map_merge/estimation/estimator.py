@@ -23,7 +23,7 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from .. import transforms as tf
-from ..grid import Grid, crop_to_known
+from ..grid import Grid
 from ..progress import progress_of
 from .features import FeatureCache, content_key
 from .growth import Group, Grower, Progress
@@ -31,6 +31,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .settings import EstimationSettings
 from .tracking import track
+from .union import footprint
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 
@@ -130,12 +131,12 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
 
 
 def _corners(grid: Grid) -> np.ndarray:
-    """The corners of a grid's known part, metres of its map frame."""
-    box = crop_to_known(grid.data, margin=0)
+    """The corners of the box around a grid's known part, metres of its map frame."""
+    box = footprint(grid, np.eye(3))
     if box is None:
         return np.zeros((0, 2))
-    r0, r1, c0, c1 = box
-    return tf.apply(grid.cell_to_map(), np.array([[c0, r0], [c1, r0], [c0, r1], [c1, r1]], float))
+    x0, y0, x1, y1 = box
+    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
 
 
 def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
