@@ -105,17 +105,19 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
     robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
     in the same frame, and moves one of them by more than FRESH_MOVE_M or places more."""
-    contents = [content_key(g) if g is not None else None for g in grids] if memory is not None and names else None
-    settled = contents is not None and previous is not None \
-        and all(memory.latest_inputs.get(n) == c for n, c in zip(names, contents)) \
-        and memory.fresh_inputs != tuple(zip(names, contents))
-    if contents is not None:
-        memory.latest_inputs = dict(zip(names, contents))
-    result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names)
+    # each map's content, once: tracking's verdicts remember the contents of the maps they saw
+    contents = [content_key(g) if g is not None else None for g in grids] if previous is not None else None
+    inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
+    settled = inputs is not None and memory.fresh_inputs != inputs \
+        and all(memory.latest.get(n) == c for n, c in inputs)
+    result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents)
+    if inputs is not None:
+        for n, c in inputs:
+            memory.latest.put(n, c)
     if not settled or not result.tracked:
         return result
-    memory.fresh_inputs = tuple(zip(names, contents))
-    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None)
+    memory.fresh_inputs = inputs
+    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None)
     kept = {k for k, t in enumerate(result.transforms) if t is not None}
     if fresh.reference != result.reference or not kept <= {k for k, t in enumerate(fresh.transforms)
                                                            if t is not None}:
@@ -142,7 +144,8 @@ def _corners(grid: Grid) -> np.ndarray:
 
 def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
               preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
-              progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence]) -> Estimate:
+              progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence],
+              contents: Optional[Sequence[Optional[str]]]) -> Estimate:
     settings.validate()
     progress = progress or progress_of(settings)   # merge_maps attaches its terminal display to the settings
     t0 = time.perf_counter()
@@ -162,7 +165,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 and previous[preferred_reference] is not None \
                 and np.allclose(previous[preferred_reference], np.eye(3)):
             kept, checks = track(previous, preferred_reference, usable, prepared, res, settings, pool,
-                                 grower.memory, grower.names)
+                                 grower.memory, grower.names, contents)
             if kept:
                 groups.append(grower.tracked_group(preferred_reference, kept, checks))
         tracked = len(groups[0].members) - 1 if groups else 0

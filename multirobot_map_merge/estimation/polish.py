@@ -24,6 +24,7 @@ import numpy as np
 
 from .. import transforms as tf
 from .features import PreparedGrid
+from .verify import landing_box
 
 TAU = 5.0            # pixels: a wall further than this from the other's walls costs the same however far
 FRINGE = 1.5         # pixels: walls this close to the other's unknown area are left out (ends of its beams)
@@ -33,8 +34,8 @@ FIRST_STEPS = (math.radians(0.5), 1.0)   # rotation (rad) and translation (pixel
 LAST_STEP = 0.1      # pixels: stop when the translation step shrinks below this
 MAX_MOVES = 80
 MARGIN = 10          # pixels around the other grid within which walls are sampled
-BOX_MARGIN = 25      # pixels around where the sampled walls land first within which the fields are read (a
-                     # polish moves them a few pixels; beyond this a wall counts as outside the other grid)
+BOX_MARGIN = 25      # pixels around where the grid lands first within which the fields are read (a polish
+                     # moves it a few pixels; beyond this a wall counts as outside the other grid)
 START_TURN = math.radians(0.6)   # each placement is polished from itself and from itself turned by this either way
 
 
@@ -53,14 +54,13 @@ class _OneWay:
         # 5 times as fast as numpy's indexing; the fields only around where the points land (a union is mostly
         # elsewhere), as float32 (what OpenCV reads)
         self.points = np.ascontiguousarray(src.walls[pick].astype(np.float32).reshape(1, -1, 2))
-        self.x0 = self.y0 = 0
-        self.deep = self.distance = None
-        if pick.size:
-            lo = np.maximum(np.floor(moved[pick].min(axis=0)).astype(int) - BOX_MARGIN, 0)
-            hi = np.minimum(np.ceil(moved[pick].max(axis=0)).astype(int) + BOX_MARGIN + 1, (w, h))
-            (self.x0, self.y0), (x1, y1) = lo, hi
-            self.deep = (dst.known_depth[self.y0:y1, self.x0:x1] > FRINGE).astype(np.float32)
-            self.distance = np.minimum(dst.wall_distance[self.y0:y1, self.x0:x1], TAU).astype(np.float32)
+        box = landing_box(src, dst, model, BOX_MARGIN) if pick.size else None
+        if box is None:
+            self.points = self.points[:, :0]
+            return
+        self.x0, self.y0, x1, y1 = box
+        self.deep = (dst.known_depth[self.y0:y1, self.x0:x1] > FRINGE).astype(np.float32)
+        self.distance = np.minimum(dst.wall_distance[self.y0:y1, self.x0:x1], TAU).astype(np.float32)
 
     def cost(self, model: np.ndarray) -> Tuple[float, int]:
         if self.points.shape[1] == 0:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import transforms as tf
 from ..grid import Grid
-from .features import PreparedGrid, content_key, prepare
+from .features import PreparedGrid, prepare
 from .memory import EstimationMemory, unchanged
 from .pair import PairMatch
 from .polish import polish
@@ -106,8 +106,10 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
 
 def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], res: float, s: EstimationSettings, pool: Executor,
-          memory: EstimationMemory, names: Sequence) -> Tuple[Dict[int, np.ndarray], List[Check]]:
-    """The previous placements (same reference, same merged frame) that still hold, refined, and the checks.
+          memory: EstimationMemory, names: Sequence,
+          contents: Sequence[Optional[str]]) -> Tuple[Dict[int, np.ndarray], List[Check]]:
+    """The previous placements (same reference, same merged frame) that still hold, refined, and the checks;
+    `contents` are the grids' content keys (features.content_key), memory.latest those of the last estimation.
     Empty when the reference itself no longer agrees with the others: then nothing is kept. A placement confirmed
     by an earlier estimation stands without a new check while its map has barely changed since (memory.py); it is
     checked once more when the maps around it have stopped changing (verdict_stands)."""
@@ -117,12 +119,8 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         return {}, []
     footprints = {k: box for k, box in ((k, footprint(grids[k], t)) for k, t in placed.items()) if box is not None}
 
-    # each placed map's content: a check's verdict remembers the contents of the maps it saw (not the maps)
-    contents = {k: content_key(grids[k]) for k in placed}
     # maps the same as in the last estimation: the maps around a placement have stopped changing when all have
     settled = {names[k] for k in placed if memory.latest.get(names[k]) == contents[k]}
-    for k in placed:
-        memory.latest.put(names[k], contents[k])
 
     def seen(k: int) -> Dict[Hashable, str]:
         """The contents of the maps a check of grid k looks at: its own and the placed ones near it."""
