@@ -11,7 +11,8 @@ prints, per estimation: the time, the robots placed (tracked ones marked), the s
 had placed then, and why each robot left out was refused. --more N estimates N more times on the final maps, as the
 node goes on doing after the bag ends. With the demo's summary.json, each robot's joinable time
 is printed too, so that the reason for a late join shows, and the worst placement error against the ground truth
-(its start poses) of each estimation.
+(its start poses) of each estimation; at the end, per robot, when it was placed for good and its latency (as the
+demo's summary counts it, from this replay's placements).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'
 import numpy as np  # noqa: E402
 
 from explore.coverage import placement_errors  # noqa: E402
+from explore.merge_latency import LatencyTracker  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.pipeline import MergingPipeline  # noqa: E402
@@ -78,6 +80,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     transforms: Dict[str, object] = {}
     reference: Optional[str] = None
     next_at = None
+    latency = LatencyTracker([])
 
     def estimate_now(now: float, node_placed: Optional[List[str]]) -> None:
         nonlocal transforms, reference
@@ -91,6 +94,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         took = time.perf_counter() - t0
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         reference = names[result.reference] if result.reference is not None else None
+        latency.names += [n for n in names if n not in latency.names]
+        for n in names:
+            latency.merged_since.setdefault(n, None)
+            latency.joinable_at.setdefault(n, joinable.get(n))
+        latency.included(now, transforms)
         placed = sorted(transforms)
         line = (f't {now:7.1f}  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'
                 + (f'; node had {len(node_placed)}' if node_placed is not None else '')
@@ -134,6 +142,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         estimate_now(now, node_placed)
     for _ in range(args.more):   # the node goes on estimating on the final maps
         estimate_now(now, None)
+    for row in latency.rows():
+        late = row['latency_s']
+        print(f"{row['robot']}: joinable {row['joinable_sim_s']}, placed {row['merged_sim_s']}, latency "
+              + ('- (reference)' if row['latency_reference'] else '-' if late is None else f'{late:.1f}'))
     return 0
 
 
