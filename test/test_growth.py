@@ -278,3 +278,23 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
     runs.clear()
     again = estimate(grids, s, preferred_reference=0, previous=final.transforms, memory=memory, names=names)
     assert runs == [False] and np.allclose(again.transforms[2], fresh.transforms[2])
+
+
+def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
+    """The six maps of a live demo at 15 sim s (seed 1): robots 4 and 6 pair by descriptors and, the largest group
+    then, search the others in vain; robots 1-3 grow next around the reference, robot 3, and overlap 4 and 6 by
+    10 m2. The two groups are matched with each other, so 4 and 6 (and robot 5, which needs their walls) join in
+    this estimation, each right; before, they waited for the next one."""
+    folder = repo_root / 'test' / 'data' / 'demo_late_group'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    names = sorted(starts)
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
+    ref = names.index('robot_3')
+    found = estimate(grids, EstimationSettings(), preferred_reference=ref)
+    assert found.reference == ref
+    placed = {names[k] for k, t in enumerate(found.transforms) if t is not None}
+    assert {'robot_4', 'robot_6'} <= placed, placed
+    for k, t in enumerate(found.transforms):
+        if t is not None:
+            rot, shift = _error(t, [tf.rigid(*starts[n]) for n in names], k, ref)
+            assert rot < 1.0 and shift < 0.15, (names[k], rot, shift)

@@ -83,6 +83,14 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             # paired by descriptors with a map whose part it shares): its members are tried one by one
             alone += [k for g in merged[1:] for k in g.members]
             grower.grow(main, alone)
+        for earlier in list(done):
+            # grown from the grids an earlier group left, it may overlap that one (a live demo: robots 4 and 6
+            # paired by descriptors and searched the others in vain; robots 1-3 grew next, overlapping them by
+            # 10 m2, and all waited 8 sim s for the next estimation)
+            both = grower.merge_groups([earlier, main], alone)
+            if len(both) == 1:
+                done.remove(earlier)
+                main = both[0]
         done.append(main)
         done.sort(key=lambda g: -len(g.members))
         groups = [grower.group(k, settle=False) for k in alone]
