@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional
 
 import numpy as np
 import rospy
@@ -57,7 +57,6 @@ from nav_msgs.msg import OccupancyGrid
 from .. import transforms as tf
 from ..admission import describe_invalid
 from ..estimation.features import FeatureCache
-from ..grid import Grid
 from ..msg import MergeStatus
 from ..paramdoc import docstring
 from ..pipeline import MergingPipeline
@@ -66,7 +65,7 @@ from .conversions import center_origin, grid_to_msg, restamped, transform_msg
 from .pacing import LoopPacer
 from .params import MapMergeParams
 from .process import exit_now, limit_malloc_arenas, start_exit_watchdog
-from .robot_maps import same_inputs, same_merge_inputs
+from .robot_maps import EstimationGate, same_merge_inputs
 from .robots import Robot, Robots
 from .status import fill_transforms, frame_of, status_of
 
@@ -94,7 +93,7 @@ class MapMergeNode:
         self._pending_status = None   # (MergeStatus, transforms): built by estimation, completed + sent by merging
         self._merge_pipeline = MergingPipeline(params.estimation_settings())   # merging thread only
         self._estimate_pipeline = MergingPipeline(params.estimation_settings())  # estimation thread only
-        self._estimated_inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None   # estimation thread only
+        self._estimation_gate = EstimationGate()   # estimation thread only
         self._cache_capacity = 0                      # estimation thread only
         self._last_merge = None                       # merging thread only: (inputs, message, world_from_merged)
         self._map_pub = rospy.Publisher(params.merged_map_topic, OccupancyGrid, queue_size=50, latch=True)
@@ -154,9 +153,9 @@ class MapMergeNode:
         rospy.logdebug('Grid pose estimation started.')
         robots, grids = self._robots.snapshot()
         names = [r.name for r in robots]
-        if self._estimated_inputs is not None and same_inputs(self._estimated_inputs, (names, grids)):
+        if not self._estimation_gate.wanted((names, grids)):
             # the same maps give the same placement: keep it (static maps, e.g. map_server, cost no CPU)
-            rospy.logdebug('map_merge: maps unchanged since the last estimation; transforms kept')
+            rospy.logdebug('map_merge: maps unchanged since the last two estimations; transforms kept')
             return
         pipeline = self._estimate_pipeline
         # Features are cached per map content. Live maps change between estimations, so only the current ones are
@@ -179,7 +178,7 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
-        self._estimated_inputs = (names, grids)
+        self._estimation_gate.estimated((names, grids))
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:

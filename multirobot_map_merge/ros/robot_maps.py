@@ -101,6 +101,27 @@ def same_inputs(a: Tuple[List[str], List[Optional[Grid]]], b: Tuple[List[str], L
     return True
 
 
+
+class EstimationGate:
+    """Whether the estimation loop estimates again: not on the maps the last two estimations were made on (static
+    maps cost no CPU), but once more on maps that have stopped changing. That second estimation on the same maps is
+    the one in which estimator.estimate compares the placements kept by tracking with an estimate afresh from those
+    final maps; skipped at once, as before, it never ran in the node (a live demo ended with a robot 0.37 degrees
+    and 17 cm off, its final maps estimated afresh placing it within 3 cm). Estimation thread only."""
+
+    def __init__(self) -> None:
+        self._inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None
+        self._repeated = False   # the last estimation was already a second one on the same maps
+
+    def wanted(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> bool:
+        same = self._inputs is not None and same_inputs(self._inputs, inputs)
+        return not (same and self._repeated)
+
+    def estimated(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> None:
+        """Record the maps an estimation was made on."""
+        self._repeated = self._inputs is not None and same_inputs(self._inputs, inputs)
+        self._inputs = inputs
+
 def same_merge_inputs(a: tuple, b: tuple) -> bool:
     """Two merge inputs (names, grids, transforms, reference) that compose to the same merged grid."""
     if a[3] != b[3] or len(a[2]) != len(b[2]):
