@@ -4,7 +4,9 @@
 Progress line (every ~2 s): sim time, explored share of the reachable area (the robots' own maps placed at their
 true poses, against the simulator's ground truth), robots in the merged map, explorers still exploring.
 The demo ends when every explorer has logged "Exploration stopped." or at ~limit_sim (sim s) / ~limit_wall (real
-s). Then the newest merged map is written to ~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}:
+s). It then waits (up to SETTLE_WAIT_S) for a merged map and for map_merge to settle: no new ~status for QUIET_S
+plus two estimation periods (map_merge estimates the final maps, then once more, and rests). Then the newest merged
+map is written to ~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}:
 explored share, the share the merged map covers, times, and map_merge's placement error per robot against the
 ground truth (rotation, and the largest displacement of the robot map's known-area corners), relative to the first
 placed robot, as scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch
@@ -58,6 +60,10 @@ def _transform_pose(t) -> Pose:
     return t.translation.x, t.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
+SETTLE_WAIT_S = 20.0   # wall s the end waits at most for the merged map and map_merge's last estimations
+QUIET_S = 3.0          # wall s without a new status (plus two estimation periods): map_merge has settled
+
+
 class Supervisor:
     def __init__(self) -> None:
         n = int(rospy.get_param('~num_robots', 3))
@@ -66,6 +72,7 @@ class Supervisor:
         self.limit_sim = float(rospy.get_param('~limit_sim', 1200.0))
         self.limit_wall = float(rospy.get_param('~limit_wall', 240.0))
         self.speedup = float(rospy.get_param('~speedup', 1.0))
+        self.estimation_rate = float(rospy.get_param('/map_merge/map_merge/estimation_rate', 0.5))
         self.lock = threading.Lock()   # owns everything below, written by the callbacks
         self.world: Optional[Grid] = None
         self.starts: Dict[str, Pose] = {}
@@ -73,6 +80,7 @@ class Supervisor:
         self.status: Optional[MergeStatus] = None
         self.merged: Optional[Grid] = None
         self.merged_at = 0.0           # wall time the newest merged map arrived
+        self.status_at = 0.0           # wall time the newest status arrived
         self.stopped: set = set()
         self.reach: Optional[np.ndarray] = None
         self.latency = LatencyTracker(self.names)
@@ -117,7 +125,7 @@ class Supervisor:
     def on_status(self, msg):
         stamp = msg.header.stamp.to_sec() or rospy.get_time()
         with self.lock:
-            self.status = msg
+            self.status, self.status_at = msg, time.monotonic()
             self.latency.included(stamp, [e.robot_namespace.strip('/') for e in msg.robots if e.included])
 
     def on_merged(self, msg):
@@ -226,12 +234,17 @@ class Supervisor:
         rospy.signal_shutdown('demo finished')
 
     def finish(self, reason: str, sim: float, wall: float, wall0: float) -> None:
-        # one more merge cycle so the merged map includes the robots' final maps
+        # one more merge cycle so the merged map includes the robots' final maps, and map_merge settled: it estimates
+        # the final maps, then once more (comparing the placements it kept with an estimate afresh, estimator.py) and
+        # goes quiet; the summary reports what a user watching the merged map then sees
         end = time.monotonic()
-        while time.monotonic() - end < 5.0 and not rospy.is_shutdown():
+        quiet = QUIET_S + 2.0 / (self.estimation_rate * self.speedup)   # two estimation periods, wall s
+        while time.monotonic() - end < SETTLE_WAIT_S and not rospy.is_shutdown():
             with self.lock:
-                if self.merged is not None and self.merged_at > end + 1.0:
-                    break
+                merged = self.merged is not None and self.merged_at > end + 1.0
+                settled = time.monotonic() - max(self.status_at, end) >= quiet
+            if merged and settled:
+                break
             time.sleep(0.2)
         share = self.explored()
         rows, truth_from_merged = self.placements()
