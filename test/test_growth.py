@@ -298,3 +298,20 @@ def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
         if t is not None:
             rot, shift = _error(t, [tf.rigid(*starts[n]) for n in names], k, ref)
             assert rot < 1.0 and shift < 0.15, (names[k], rot, shift)
+
+
+def test_a_placement_tracking_drops_is_searched_again_at_once(repo_root):
+    """A robot's early map that only the correlation search places onto the union of four others (live demo, seed
+    2). Tracking drops its placement when that is off (here shifted by 1 m); the robot goes back to the search in
+    the same estimation, although memory remembers the search that placed it and neither map has changed."""
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    folder = repo_root / 'test' / 'data' / 'demo_early_small_map'
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in ('union', 'robot_1')]
+    s, memory, names = EstimationSettings(), EstimationMemory(), ['union', 'robot_1']
+    first = estimate(grids, s, preferred_reference=0, previous=[None, None], memory=memory, names=names)
+    assert first.transforms[1] is not None
+    off = tf.rigid(1.0, 0.0, 0.0) @ first.transforms[1]
+    again = estimate(grids, s, preferred_reference=0, previous=[np.eye(3), off], memory=memory, names=names)
+    assert again.tracked == 0 and again.transforms[1] is not None
+    rot, shift = _error(again.transforms[1], [np.eye(3), first.transforms[1]], 1, 0)
+    assert rot < 0.5 and shift < 0.1, (rot, shift)

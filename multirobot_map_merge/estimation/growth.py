@@ -204,6 +204,7 @@ class Grower:
                 group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
                 unplaced.remove(m.i)
                 self.refused.pop(m.i, None)
+                self._forget_search(m.i, group)
                 self._settle(1)
                 added = True
             else:
@@ -212,6 +213,12 @@ class Grower:
                         and m.best.overlap_m2 >= self.s.min_overlap_m2:
                     self.contradicting.add(m.i)
         return added
+
+    def _forget_search(self, k: int, group: Group) -> None:
+        """Grid k is placed in the group: a search of it against the group that memory keeps (made before it was
+        placed, or the one that placed it) would otherwise, once tracking drops its placement, keep it from being
+        searched again until a map grows (a live demo: a robot left out for 21 sim s)."""
+        self.memory.searches.drop((self.names[k], self.names[group.seed]))
 
     def _search(self, group: Group, unplaced: List[int]) -> bool:
         """The correlation search, smallest grid first, on grids the union has grown for since their last search;
@@ -258,6 +265,8 @@ class Grower:
                             groups[a] = small
                         else:
                             big.absorb(small, m.transform_m, m)
+                        for k in groups[a].members:
+                            self._forget_search(k, groups[a])
                         groups.pop(b)
                         self.grow(groups[a], unplaced)
                         changed = True
