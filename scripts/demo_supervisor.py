@@ -5,7 +5,8 @@ Progress line (every ~2 s): sim time, explored share of the reachable area (the 
 true poses, against the simulator's ground truth), robots in the merged map, explorers still exploring.
 The demo ends when every explorer has logged "Exploration stopped." or at ~limit_sim (sim s) / ~limit_wall (real
 s). It then waits (up to SETTLE_WAIT_S) for a merged map and for map_merge to settle: no new ~status for QUIET_S
-plus two estimation periods (map_merge estimates the final maps, then once more, and rests). Then the newest merged
+plus two estimation periods plus twice the longest estimation so far (map_merge estimates the final maps, then once
+more, and rests). Then the newest merged
 map is written to ~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}:
 explored share, the share the merged map covers, times, and map_merge's placement error per robot against the
 ground truth (rotation, and the largest displacement of the robot map's known-area corners), relative to the first
@@ -60,7 +61,7 @@ def _transform_pose(t) -> Pose:
     return t.translation.x, t.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
-SETTLE_WAIT_S = 20.0   # wall s the end waits at most for the merged map and map_merge's last estimations
+SETTLE_WAIT_S = 60.0   # wall s the end waits at most for the merged map and map_merge's last estimations
 QUIET_S = 3.0          # wall s without a new status (plus two estimation periods): map_merge has settled
 
 
@@ -81,6 +82,7 @@ class Supervisor:
         self.merged: Optional[Grid] = None
         self.merged_at = 0.0           # wall time the newest merged map arrived
         self.status_at = 0.0           # wall time the newest status arrived
+        self.longest_estimation = 0.0  # wall s, the longest estimation_time of a status
         self.stopped: set = set()
         self.reach: Optional[np.ndarray] = None
         self.latency = LatencyTracker(self.names)
@@ -126,6 +128,7 @@ class Supervisor:
         stamp = msg.header.stamp.to_sec() or rospy.get_time()
         with self.lock:
             self.status, self.status_at = msg, time.monotonic()
+            self.longest_estimation = max(self.longest_estimation, msg.estimation_time)
             self.latency.included(stamp, [e.robot_namespace.strip('/') for e in msg.robots if e.included])
 
     def on_merged(self, msg):
@@ -238,10 +241,12 @@ class Supervisor:
         # the final maps, then once more (comparing the placements it kept with an estimate afresh, estimator.py) and
         # goes quiet; the summary reports what a user watching the merged map then sees
         end = time.monotonic()
-        quiet = QUIET_S + 2.0 / (self.estimation_rate * self.speedup)   # two estimation periods, wall s
         while time.monotonic() - end < SETTLE_WAIT_S and not rospy.is_shutdown():
             with self.lock:
                 merged = self.merged is not None and self.merged_at > end + 1.0
+                # quiet for longer than an estimation takes: two periods, and twice the longest one seen (wall s),
+                # since the last estimation, the one afresh, can take that long (12 robots: 3-7 s each)
+                quiet = QUIET_S + 2.0 / (self.estimation_rate * self.speedup) + 2.0 * self.longest_estimation
                 settled = time.monotonic() - max(self.status_at, end) >= quiet
             if merged and settled:
                 break
