@@ -64,6 +64,12 @@ class LatencyTracker:
         self.joinable_at: Dict[str, Optional[float]] = {n: None for n in self.names}
         self.merged_since: Dict[str, Optional[float]] = {n: None for n in self.names}   # None: not merged now
 
+    def add(self, name: str) -> None:
+        """Track one more robot (one seen only later, as in a replay)."""
+        if name not in self.joinable_at:
+            self.names.append(name)
+            self.joinable_at[name], self.merged_since[name] = None, None
+
     def joinable(self, t: float, names: Iterable[str]) -> None:
         for n in names:
             if n in self.joinable_at and self.joinable_at[n] is None:

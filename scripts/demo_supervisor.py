@@ -6,8 +6,8 @@ true poses, against the simulator's ground truth), robots in the merged map, exp
 The demo ends when every explorer has logged "Exploration stopped." or at ~limit_sim (sim s) / ~limit_wall (real
 s). It then waits (up to SETTLE_WAIT_S) for a merged map and for map_merge to settle: no new ~status for QUIET_S
 plus two estimation periods plus twice the longest estimation so far (map_merge estimates the final maps, then once
-more, and rests). Then the newest merged
-map is written to ~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}:
+more, and rests). Then the newest merged map is written to ~out/merged.{yaml,pgm,png} and a summary to
+~out/summary.{txt,json}:
 explored share, the share the merged map covers, times, and map_merge's placement error per robot against the
 ground truth (rotation, and the largest displacement of the robot map's known-area corners), relative to the first
 placed robot, as scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch

@@ -94,10 +94,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         took = time.perf_counter() - t0
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         reference = names[result.reference] if result.reference is not None else None
-        latency.names += [n for n in names if n not in latency.names]
         for n in names:
-            latency.merged_since.setdefault(n, None)
-            latency.joinable_at.setdefault(n, joinable.get(n))
+            latency.add(n)
+            if joinable.get(n) is not None:
+                latency.joinable(joinable[n], [n])
         latency.included(now, transforms)
         placed = sorted(transforms)
         line = (f't {now:7.1f}  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'

@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, List, Optional
 
-import cv2
 import numpy as np
 
 from .. import transforms as tf
@@ -23,8 +22,8 @@ from .hypotheses import hypotheses, putative_matches, quick_agreement
 from .polish import polish
 from .refine import icp
 from .search import correlate_candidates
-from .verify import (Placement, distinct, overlap_found, pair_confidence, plausible, refusal, same_place,
-                     verify)
+from .verify import (Placement, distinct, landing_box, overlap_found, pair_confidence, plausible, refusal,
+                     same_place, verify, warp_into)
 
 if TYPE_CHECKING:
     from .settings import EstimationSettings
@@ -65,13 +64,15 @@ def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) 
 
     Buildings repeat themselves; a placement that is as good after such a turn means the match is ambiguous.
     """
-    h, w = pj.work.shape
-    warped = cv2.warpAffine(pi.work.view(np.uint8), best.transform[:2], (w, h), flags=cv2.INTER_NEAREST,
-                            borderValue=255).view(np.int8)
-    rows, cols = np.nonzero((warped >= 0) & (pj.work >= 0))
+    box = landing_box(pi, pj, best.transform, 0)
+    if box is None:
+        return []
+    x0, y0, x1, y1 = box
+    warped = warp_into(pi.work.view(np.uint8), best.transform, box, 255).view(np.int8)
+    rows, cols = np.nonzero((warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0))
     if rows.size == 0:
         return []
-    cx, cy = cols.mean(), rows.mean()
+    cx, cy = cols.mean() + x0, rows.mean() + y0
     out = []
     for quarter in (1, 2, 3):
         turn = tf.translation(cx, cy) @ tf.rigid(0.0, 0.0, quarter * math.pi / 2) @ tf.translation(-cx, -cy)

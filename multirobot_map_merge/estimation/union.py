@@ -10,14 +10,13 @@ from __future__ import annotations
 import math
 from typing import Callable, Dict, Optional, Sequence, Tuple
 
-import cv2
 import numpy as np
 
 from .. import transforms as tf
 from ..compose import compose
 from ..grid import Grid, crop_to_known
 from .features import PreparedGrid, map_keypoints, pooled_keypoints, prepare
-from .verify import landing_box
+from .verify import landing_box, warp_into
 
 Box = Tuple[float, float, float, float]   # x0, y0, x1, y1 (metres, merged frame)
 HISTORY = 4   # prepared versions of a union kept to tell where it changed
@@ -113,8 +112,7 @@ class UnionMap:
         if box is None:
             return False
         x0, y0, x1, y1 = box
-        under = cv2.warpAffine((part.work >= 0).view(np.uint8), (tf.translation(-x0, -y0) @ model)[:2],
-                               (x1 - x0, y1 - y0), flags=cv2.INTER_NEAREST) > 0
+        under = warp_into((part.work >= 0).view(np.uint8), model, box) > 0
         return not np.array_equal(old.work[y0:y1, x0:x1][under],
                                   new.work[dy + y0:dy + y1, dx + x0:dx + x1][under])
 

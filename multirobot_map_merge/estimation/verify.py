@@ -94,6 +94,14 @@ def landing_box(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, margin: i
     return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
 
 
+def warp_into(image: np.ndarray, model: np.ndarray, box: Tuple[int, ...], border: int = 0) -> np.ndarray:
+    """A uint8 image of grid i's pixels placed by `model` (nearest neighbour) into the pixels `box` of grid j
+    (landing_box): a union is mostly elsewhere, so only that box is warped."""
+    x0, y0, x1, y1 = box
+    return cv2.warpAffine(image, (tf.translation(-x0, -y0) @ model)[:2], (x1 - x0, y1 - y0), flags=cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+
+
 def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings) -> Placement:
     """How well grid i placed by `model` (pixels i -> pixels j) agrees with grid j.
 
@@ -104,13 +112,12 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     (deep_conflicts).
     """
     result = Placement(model)
-    # grid i is warped only into the box of j it lands in, with the margin below (a union is mostly elsewhere)
+    # grid i is warped only into the box of j it lands in, with the margin below
     box = landing_box(pi, pj, model, MARGIN + 4)
     if box is None:
         return result
     x0, y0, x1, y1 = box
-    warped = cv2.warpAffine(pi.work.view(np.uint8), (tf.translation(-x0, -y0) @ model)[:2], (x1 - x0, y1 - y0),
-                            flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=255).view(np.int8)
+    warped = warp_into(pi.work.view(np.uint8), model, box, 255).view(np.int8)
     both = (warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0)
     rows, cols = np.nonzero(both)
     result.overlap_m2 = float(rows.size) * pi.resolution ** 2

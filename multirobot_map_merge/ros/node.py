@@ -153,7 +153,8 @@ class MapMergeNode:
         rospy.logdebug('Grid pose estimation started.')
         robots, grids = self._robots.snapshot()
         names = [r.name for r in robots]
-        if not self._estimation_gate.wanted((names, grids)):
+        inputs = (names, grids)
+        if not self._estimation_gate.wanted(inputs):
             # the same maps give the same placement: keep it (static maps, e.g. map_server, cost no CPU)
             rospy.logdebug('map_merge: maps unchanged since the last two estimations; transforms kept')
             return
@@ -178,7 +179,7 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
-        self._estimation_gate.estimated((names, grids))
+        self._estimation_gate.estimated(inputs)
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:

@@ -101,7 +101,6 @@ def same_inputs(a: Tuple[List[str], List[Optional[Grid]]], b: Tuple[List[str], L
     return True
 
 
-
 class EstimationGate:
     """Whether the estimation loop estimates again: not on the maps the last two estimations were made on (static
     maps cost no CPU), but once more on maps that have stopped changing. That second estimation on the same maps is
@@ -112,15 +111,20 @@ class EstimationGate:
     def __init__(self) -> None:
         self._inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None
         self._repeated = False   # the last estimation was already a second one on the same maps
+        self._asked: Optional[tuple] = None   # (inputs, same as self._inputs): the last wanted() call
 
     def wanted(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> bool:
         same = self._inputs is not None and same_inputs(self._inputs, inputs)
+        self._asked = (inputs, same)
         return not (same and self._repeated)
 
     def estimated(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> None:
-        """Record the maps an estimation was made on."""
-        self._repeated = self._inputs is not None and same_inputs(self._inputs, inputs)
-        self._inputs = inputs
+        """Record the maps an estimation was made on (compared once, in wanted(), when it asked about them)."""
+        asked = self._asked
+        self._repeated = asked[1] if asked is not None and asked[0] is inputs else \
+            self._inputs is not None and same_inputs(self._inputs, inputs)
+        self._inputs, self._asked = inputs, None
+
 
 def same_merge_inputs(a: tuple, b: tuple) -> bool:
     """Two merge inputs (names, grids, transforms, reference) that compose to the same merged grid."""
