@@ -315,3 +315,47 @@ def test_a_placement_tracking_drops_is_searched_again_at_once(repo_root):
     assert again.tracked == 0 and again.transforms[1] is not None
     rot, shift = _error(again.transforms[1], [np.eye(3), first.transforms[1]], 1, 0)
     assert rot < 0.5 and shift < 0.1, (rot, shift)
+
+
+def test_a_grid_found_to_contradict_some_members_is_not_searched_against_their_grown_union(repo_root):
+    """A grid whose descriptors found where it overlaps a member and contradicts it there (a broken map) is not
+    searched against the union once it has grown, even when its last match onto the grown union found no candidate
+    (the new members' descriptors crowd its ratio test: 4 of the 36 generated maps); a search would find the same
+    contradiction. A grid with no such evidence is searched."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    grids = grids + [grids[2], grids[2]]   # 3 and 4: stand-ins for grids the union does not place
+    s = EstimationSettings()
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    contradicting = Placement(np.eye(3), support=900, agreement=0.97, overlap_m2=30.0, deep_conflicts=40)
+    with ThreadPoolExecutor(2) as pool:
+        grower = Grower(grids, prepared, 0.05, s, pool, None, None)
+        group = grower.group(0)
+        grower._admit(group, [3], [PairMatch(3, 0, reason='deep conflicts', best=contradicting)])
+        group.union.add(1, grids[1], prepared[1], tf.inverse(poses[0]) @ poses[1])
+        unplaced = [3, 4]
+        grower._admit(group, unplaced, [PairMatch(k, 0, reason='no rigid model') for k in unplaced])
+        searched = []
+        grower.match = lambda k, g, search: searched.append(k) or PairMatch(k, g.seed, reason='none')
+        assert not grower._search(group, unplaced)
+    assert searched == [4]
+
+
+def test_a_pair_refusal_counts_as_a_found_overlap_only_by_the_rule_for_pairs(repo_root):
+    """Final maps of a live demo run (demo_lost_robot) with the correlation search scored as in earlier versions:
+    robot_2, searched against robot_1 alone, is refused with support and agreement (511, 0.68) that would count as a
+    found overlap onto a union of maps, not for a pair. Judged by the rule for the match it came from, that refusal
+    does not keep robot_2 from the search onto the union of robot_1 and robot_3 once robot_3 has joined, which
+    places it right (judged by the rule for unions, it did)."""
+    folder = repo_root / 'test' / 'data' / 'demo_lost_robot'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    names = ['robot_1', 'robot_2', 'robot_3']
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
+    found = estimate(grids, EstimationSettings(search_penalty=1.0, search_free_reward=0.0), preferred_reference=0)
+    assert found.transforms[1] is not None
+    rot, shift = _error(found.transforms[1], [tf.rigid(*starts[n]) for n in names], 1, 0)
+    assert rot < 0.5 and shift < 0.1, (rot, shift)
