@@ -133,7 +133,6 @@ class Grower:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
         search=False, by descriptors alone)."""
         while unplaced:
-            self._check_agreement(group, unplaced)
             batch = [k for k in unplaced if self._worth_matching(k, group)]
             if batch:
                 known = group.union.known_pixels   # prepares the union once, before the workers share it
@@ -187,31 +186,19 @@ class Grower:
             return True
         return group.union.changed_under(self.prepared[k], last.best.transform, since=tried)
 
-    def _check_agreement(self, group: Group, unplaced: List[int]) -> None:
-        """Whether the descriptors agree, for every grid whose last match onto the group's union found no candidate
-        with each member that joined since (_worth_matching asks), checked side by side on the pool: one at a time
-        between the rounds, the checks kept the other core idle (0.4 s of the 36 generated maps)."""
-        pairs = [(k, m) for k in unplaced if (k, id(group)) in self.blind
-                 and self.tried.get((k, id(group))) not in (None, group.union.version)
-                 for m in group.members if m not in self.blind[(k, id(group))] and (k, m) not in self.agreeing]
-        for pair, agree in zip(pairs, self.pool.map(lambda km: self._agree(*km), pairs)):
-            self.agreeing[pair] = agree
-
     def _descriptors_agree(self, k: int, m: int) -> bool:
         """Whether the putative descriptor matches of grid k with grid m hold a rigid model with enough inliers."""
         if (k, m) not in self.agreeing:
-            self.agreeing[(k, m)] = self._agree(k, m)
+            pk, pm = self.prepared[k], self.prepared[m]
+            pairs = putative_matches(pk, pm, self.s.ratio, False)
+            agree = False
+            if len(pairs) >= self.s.min_inliers:
+                rng = np.random.default_rng(self.s.seed + 7919 * k + m)
+                model, mask = ransac_rigid(pk.keypoints[pairs[:, 0]], pm.keypoints[pairs[:, 1]],
+                                           self.s.ransac_threshold, self.s.ransac_iterations, rng)
+                agree = model is not None and int(mask.sum()) >= self.s.min_inliers
+            self.agreeing[(k, m)] = agree
         return self.agreeing[(k, m)]
-
-    def _agree(self, k: int, m: int) -> bool:
-        pk, pm = self.prepared[k], self.prepared[m]
-        pairs = putative_matches(pk, pm, self.s.ratio, False)
-        if len(pairs) < self.s.min_inliers:
-            return False
-        rng = np.random.default_rng(self.s.seed + 7919 * k + m)
-        model, mask = ransac_rigid(pk.keypoints[pairs[:, 0]], pm.keypoints[pairs[:, 1]], self.s.ransac_threshold,
-                                   self.s.ransac_iterations, rng)
-        return model is not None and int(mask.sum()) >= self.s.min_inliers
 
     def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
         added = False
