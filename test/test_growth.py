@@ -247,8 +247,9 @@ def test_a_grid_blind_to_a_union_is_matched_again_only_for_new_members_its_descr
 
 def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps(repo_root, monkeypatch):
     """Tracking checks each placement against the maps near it, so small turns between neighbours can add up; once
-    the maps stop changing, the kept placements are compared once with an estimate afresh from those final maps,
-    which replaces them when it moves one by more than the noise (it places every map they did, same frame)."""
+    the maps stop changing, the kept placements are compared once with an estimate afresh from those final maps (in
+    the estimation after the one that checks them on those maps), which replaces them when it moves one by more than
+    the noise (it places every map they did, same frame)."""
     from multirobot_map_merge.estimation import estimator, tracking
     from multirobot_map_merge.estimation.memory import EstimationMemory
     from multirobot_map_merge.estimation.pair import PairMatch
@@ -266,9 +267,13 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
     kept = estimate(grids, s, preferred_reference=0, previous=previous, memory=memory, names=names)
     assert runs == [False] and kept.tracked == 2
     assert np.allclose(kept.transforms[2], previous[2])
-    # the same maps again: they have stopped changing; the estimate afresh runs and replaces the kept placements
+    # the same maps again: they have stopped changing; tracking checks the placements on these final maps
     runs.clear()
-    final = estimate(grids, s, preferred_reference=0, previous=kept.transforms, memory=memory, names=names)
+    checked = estimate(grids, s, preferred_reference=0, previous=kept.transforms, memory=memory, names=names)
+    assert runs == [False] and np.allclose(checked.transforms[2], previous[2])
+    # and once more: now the estimate afresh runs and replaces the kept placements
+    runs.clear()
+    final = estimate(grids, s, preferred_reference=0, previous=checked.transforms, memory=memory, names=names)
     assert runs == [False, True] and final.reference == 0
     for k in range(3):
         assert np.allclose(final.transforms[k], fresh.transforms[k], atol=1e-9), k
