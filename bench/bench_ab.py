@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""Interleaved comparison of the estimation of two revisions (not a test: it prints figures and their ratio).
+
+    scripts/env.sh python bench/bench_ab.py [--base REV] [--rounds N] [--threads N] [--maps DIR | --large36 [CACHE]]
+
+Runs one estimation per process, alternating the base revision (default HEAD, checked out into a temporary git
+worktree that is removed at the end) and the working tree, for --rounds rounds; prints per side the median and
+lowest wall time, the median CPU time and the maps placed, and the ratio of the medians. The maps default to the
+shared 30-map scenario; --large36 uses the generated 36-map one (bench_merge.py --large36 makes it).
+
+Why interleaved: on this 2-core machine the same code ran 4.9-7.3 s within one hour, CPU time included, so two
+figures taken minutes apart cannot show a change of less than about a tenth; alternating one process each puts
+both sides under the same conditions.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Dict, List
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_MAPS = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
+
+# one estimation of every map_*.yaml in a folder, with the package of `root`; prints wall, CPU and placed as JSON
+ONE_ESTIMATION = '''
+import glob, json, sys, time
+sys.path.insert(0, {root!r})
+from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.estimation.estimator import estimate
+from multirobot_map_merge.estimation.settings import EstimationSettings
+grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
+wall, cpu = time.perf_counter(), time.process_time()
+found = estimate(grids, EstimationSettings(threads={threads}))
+print(json.dumps({{'wall': time.perf_counter() - wall, 'cpu': time.process_time() - cpu,
+                  'placed': sum(t is not None for t in found.transforms)}}))
+'''
+
+
+def run_once(root: Path, maps: Path, threads: int) -> Dict[str, float]:
+    code = ONE_ESTIMATION.format(root=str(root), maps=str(maps), threads=threads)
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def summary(name: str, runs: List[Dict[str, float]]) -> str:
+    walls = [r['wall'] for r in runs]
+    placed = sorted({int(r['placed']) for r in runs})
+    return (f'| {name} | {statistics.median(walls):.2f} | {min(walls):.2f} | '
+            f'{statistics.median(r["cpu"] for r in runs):.2f} | {"/".join(map(str, placed))} | '
+            f'{" ".join(f"{w:.2f}" for w in walls)} |')
+
+
+def main(argv: List[str] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--base', default='HEAD', help='revision compared with the working tree (default HEAD)')
+    ap.add_argument('--rounds', type=int, default=5, help='estimations per side, alternating (default 5)')
+    ap.add_argument('--threads', type=int, default=2, help='EstimationSettings.threads (default 2)')
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument('--maps', type=Path, help='a folder of map_*.yaml (default: the shared 30-map scenario)')
+    where.add_argument('--large36', nargs='?', const=REPO / 'out' / 'bench', type=Path, metavar='CACHE',
+                       help='the generated 36-map scenario in CACHE/large36 (default out/bench)')
+    args = ap.parse_args(argv)
+    maps = args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)
+    if not sorted(maps.glob('map_*.yaml')):
+        print(f'bench_ab: no map_*.yaml in {maps}' + (' (run bench_merge.py --large36 first)'
+                                                      if args.large36 is not None else ''), file=sys.stderr)
+        return 2
+    if args.rounds < 1 or args.threads < 1:
+        print('bench_ab: --rounds and --threads must be at least 1', file=sys.stderr)
+        return 2
+    base_rev = subprocess.run(['git', '-C', str(REPO), 'rev-parse', '--short', args.base], capture_output=True,
+                              text=True)
+    if base_rev.returncode != 0:
+        print(f'bench_ab: unknown revision {args.base}', file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
+        base = Path(tmp) / 'base'
+        subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', '-q', str(base), args.base],
+                       check=True)
+        try:
+            runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
+            for n in range(args.rounds):
+                for side, root in (('base', base), ('work', REPO)):
+                    runs[side].append(run_once(root, maps, args.threads))
+                print(f'round {n + 1}/{args.rounds}: base {runs["base"][-1]["wall"]:.2f} s, '
+                      f'work {runs["work"][-1]["wall"]:.2f} s', flush=True)
+        finally:
+            subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
+    print(f'\none estimation of {len(sorted(maps.glob("map_*.yaml")))} maps ({maps.name}), {args.threads} threads, '
+          f'{args.rounds} rounds alternating; base = {args.base} ({base_rev.stdout.strip()}), work = working tree\n')
+    print('| side | wall median (s) | wall lowest (s) | CPU median (s) | placed | walls (s) |')
+    print('|---|---|---|---|---|---|')
+    print(summary('base', runs['base']))
+    print(summary('work', runs['work']))
+    ratio = statistics.median(r['wall'] for r in runs['work']) / statistics.median(r['wall'] for r in runs['base'])
+    print(f'\n- work / base, median wall: {ratio:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
