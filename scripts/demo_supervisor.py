@@ -5,12 +5,12 @@ Progress line (every ~2 s): sim time, explored share of the reachable area (the 
 true poses, against the simulator's ground truth), robots in the merged map, explorers still exploring.
 The demo ends when every explorer has logged "Exploration stopped." or at ~limit_sim (sim s) / ~limit_wall (real
 s). It then waits (up to SETTLE_WAIT_S) for a merged map and for map_merge to settle: no new ~status for QUIET_S
-plus two estimation periods plus twice the longest estimation so far (map_merge estimates the final maps, then once
-more, and rests). Then the newest merged map is written to ~out/merged.{yaml,pgm,png} and a summary to
-~out/summary.{txt,json}:
-explored share, the share the merged map covers, times, and map_merge's placement error per robot against the
-ground truth (rotation, and the largest displacement of the robot map's known-area corners), relative to the first
-placed robot, as scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch
+plus two estimation periods plus twice the longest estimation so far (map_merge estimates the final maps, then twice
+more: its checks on them, then its estimate afresh; and rests). Then the newest merged map is written to
+~out/merged.{yaml,pgm,png} and a summary to ~out/summary.{txt,json}: explored share, the share the merged map
+covers, times, and map_merge's placement error per robot against the ground truth (rotation, and the largest
+displacement of the robot map's known-area corners), relative to the first placed robot, as
+scripts/placement_report.py reports it offline. Finally the node shuts down, which ends the launch
 (it is `required`).
 
 Merge latency (explore.merge_latency): every ~0.5 s the robots' maps are drawn at their true poses on a 0.1 m world
@@ -238,8 +238,8 @@ class Supervisor:
 
     def finish(self, reason: str, sim: float, wall: float, wall0: float) -> None:
         # one more merge cycle so the merged map includes the robots' final maps, and map_merge settled: it estimates
-        # the final maps, then once more (comparing the placements it kept with an estimate afresh, estimator.py) and
-        # goes quiet; the summary reports what a user watching the merged map then sees
+        # the final maps, then twice more (checking its placements on them, then comparing them with an estimate
+        # afresh, estimator.py) and goes quiet; the summary reports what a user watching the merged map then sees
         end = time.monotonic()
         while time.monotonic() - end < SETTLE_WAIT_S and not rospy.is_shutdown():
             with self.lock:

@@ -156,7 +156,7 @@ class MapMergeNode:
         inputs = (names, grids)
         if not self._estimation_gate.wanted(inputs):
             # the same maps give the same placement: keep it (static maps, e.g. map_server, cost no CPU)
-            rospy.logdebug('map_merge: maps unchanged since the last two estimations; transforms kept')
+            rospy.logdebug('map_merge: maps unchanged over the last estimations; transforms kept')
             return
         pipeline = self._estimate_pipeline
         # Features are cached per map content. Live maps change between estimations, so only the current ones are
