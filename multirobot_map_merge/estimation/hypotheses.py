@@ -37,20 +37,27 @@ class HypothesisSettings:
 
 def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True) -> np.ndarray:
     """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction (or only from
-    i to j: j is a union, most of whose keypoints are nowhere in i)."""
+    i to j: j is a union, most of whose keypoints are nowhere in i), sorted."""
     pi.describe(), pj.describe()
     if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
-    norm = cv2.NORM_HAMMING if pi.descriptors.dtype == np.uint8 else cv2.NORM_L2
-    matcher = cv2.BFMatcher(norm)
-    found = set()
-    directions = ((pi.descriptors, pj.descriptors, False), (pj.descriptors, pi.descriptors, True))
-    for query, train, swapped in directions[:2 if both_ways else 1]:
-        for pair in matcher.knnMatch(query, train, k=2):
-            if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance:
-                a, b = pair[0].queryIdx, pair[0].trainIdx
-                found.add((b, a) if swapped else (a, b))
-    return np.array(sorted(found), np.int64).reshape(-1, 2)
+    found = [_ratio_tested(pi.descriptors, pj.descriptors, ratio)]
+    if both_ways:
+        found.append(_ratio_tested(pj.descriptors, pi.descriptors, ratio)[:, ::-1])
+    # each pair once, in the order of (i, j)
+    keys = np.unique(np.concatenate([f[:, 0] * len(pj.descriptors) + f[:, 1] for f in found]))
+    return np.stack(np.divmod(keys, len(pj.descriptors)), axis=1)
+
+
+def _ratio_tested(query: np.ndarray, train: np.ndarray, ratio: float) -> np.ndarray:
+    """(K, 2) pairs (query index, its nearest train index) whose nearest is clearly nearer than the second nearest.
+    cv2.batchDistance is what a BFMatcher's knnMatch runs, with arrays out instead of a Python object per match."""
+    norm = cv2.NORM_HAMMING if query.dtype == np.uint8 else cv2.NORM_L2
+    distance, nearest = cv2.batchDistance(query, train, cv2.CV_32S if norm == cv2.NORM_HAMMING else cv2.CV_32F,
+                                          normType=norm, K=2)
+    distance = distance.astype(np.float32)   # as a DMatch holds it
+    keep = np.flatnonzero(distance[:, 0] < ratio * distance[:, 1].astype(np.float64))
+    return np.stack([keep, nearest[keep, 0].astype(np.int64)], axis=1)
 
 
 def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int,
