@@ -364,3 +364,42 @@ def test_a_pair_refusal_counts_as_a_found_overlap_only_by_the_rule_for_pairs(rep
     assert found.transforms[1] is not None
     rot, shift = _error(found.transforms[1], [tf.rigid(*starts[n]) for n in names], 1, 0)
     assert rot < 0.5 and shift < 0.1, (rot, shift)
+
+
+def _grower_of(grids, s):
+    from concurrent.futures import ThreadPoolExecutor
+    from multirobot_map_merge.estimation.growth import Grower
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    return Grower(grids, prepared, 0.05, s, ThreadPoolExecutor(max_workers=2), 0, None)
+
+
+@pytest.mark.parametrize('shift_m', [0.0, 0.4])
+def test_a_search_placement_the_final_merge_contradicts_leaves_it(repo_root, shift_m):
+    """Robot 2 placed by a search, at the truth or slid by 0.4 m (as a search onto an early union can leave a map
+    along a corridor): judged against the others as they are at the end, the right one stays, the slid one leaves
+    the merge, reported with the reason, and its link is gone."""
+    grids, poses = _sample(repo_root, 'three_robots')
+    s = EstimationSettings()
+    grower = _grower_of(grids, s)
+    group = grower.group(0)
+    for k in (1, 2):
+        placement = tf.inverse(poses[0]) @ poses[k]
+        if k == 2:
+            placement = tf.rigid(shift_m, -shift_m, 0.0) @ placement
+        group.union.add(k, grids[k], grower.prepared[k], placement)
+    grower.searched.add(2)
+    grower.confirm_searches(group)
+    if shift_m:
+        assert set(group.members) == {0, 1}
+        assert 'contradicts the placement a search found' in grower.refused[2].reason
+    else:
+        assert set(group.members) == {0, 1, 2}, grower.refused.get(2)
+
+
+def test_the_estimation_confirms_the_search_placements_of_the_merge_it_ends_with(repo_root, monkeypatch):
+    from multirobot_map_merge.estimation.growth import Grower
+    grids, _ = _sample(repo_root, 'three_robots')
+    confirmed = []
+    monkeypatch.setattr(Grower, 'confirm_searches', lambda self, group: confirmed.append(set(group.members)))
+    result = estimate(grids, EstimationSettings())
+    assert confirmed == [{k for k, t in enumerate(result.transforms) if t is not None}]

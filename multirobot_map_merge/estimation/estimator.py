@@ -7,7 +7,8 @@ Cheapest first: descriptors alone form the groups (grids that join none seed the
 the costly correlation search on the grids left alone, smallest first, and is matched against the other groups
 (union against union); members of a group that cannot join as a whole are tried one by one. The largest group is
 the merge, in the frame of its seed. (Searching every grid against every group as it grew cost the 36 generated
-maps 17.5 s, this 6.4 s, with two more maps placed right.)
+maps 17.5 s, this 6.4 s, with two more maps placed right.) Last, the maps a search placed are judged again
+against the merge as it ends (Grower.confirm_searches): one that the maps joined since contradict leaves it.
 
 Tracking (tracking.py): with the transforms of the last estimate (`previous`, same reference), the grids placed
 then are re-checked first; those that still hold form the first group, which the others then join as above.
@@ -194,9 +195,10 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 grower.grow(group, unplaced, search=False)
             groups.append(group)
         groups = search_grow(grower, groups, preferred_reference)
+        chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+        grower.confirm_searches(chosen)
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
-    chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
     # the merged frame is the frame of the chosen group's seed
     for k, t in chosen.members.items():
         transforms[k] = t

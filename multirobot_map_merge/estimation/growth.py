@@ -26,6 +26,7 @@ from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
+from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import UnionMap
 from .verify import overlap_found
 
@@ -61,6 +62,14 @@ class Group:
         self.links.update(other.links)
         self.links[other.seed] = self.paired(m, other.seed)
 
+    def leave(self, k: int) -> None:
+        """Member k leaves; the members reported as paired with it are paired anew with the one they overlap most."""
+        self.union.remove(k)
+        self.links.pop(k, None)
+        for m, link in list(self.links.items()):
+            if link.j == k:
+                self.links[m] = self.paired(link, m)
+
     def paired(self, m: PairMatch, k: int) -> PairMatch:
         """m (member k placed onto the union) restated as a pair of k and the member it overlaps most."""
         anchor = self.union.anchor(k)
@@ -92,6 +101,7 @@ class Grower:
         # the group was one grid: the rule for unions on a pair's refusal kept a robot from the search that placed it)
         self.found: Dict[int, List[frozenset]] = {}
         self.settled = 0
+        self.searched: set = set()   # grids a correlation search placed (confirm_searches)
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
@@ -248,8 +258,37 @@ class Grower:
             m = self.match(k, group, search=True)
             self.search_seconds += time.perf_counter() - started
             if self._admit(group, unplaced, [m]):
+                self.searched.add(k)
                 return True
         return False
+
+    def confirm_searches(self, group: Group) -> None:
+        """Judge the grids a search placed again, as they are, against the other members near them (tracking's
+        check without its refinement): a search takes the best place on the union as it was then, and the members
+        that joined since can show that it slid along a corridor (36 generated maps: one map placed 0.34 m off onto
+        a union of 16, which the final union of 25 contradicts, agreement 0.89). One that fails leaves the group:
+        the one that agrees least first, then those that failed are judged again without it, as tracking does."""
+        todo = [k for k in group.members if k in self.searched and k != group.seed]
+        for _ in range(MAX_PASSES):
+            if not todo:
+                return
+            placed, footprints = dict(group.members), dict(group.union.footprints)
+            checks = list(self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res,
+                                                          self.s, refine=False), todo))
+            failed = [c for c in checks if c.transform is None]
+            if not failed:
+                return
+            worst = least_agreeing(failed)
+            reason = worst.match.reason.replace('previous placement no longer holds', 'the merge contradicts the '
+                                                'placement a search found')
+            group.leave(worst.k)
+            worst.match.reason = reason
+            self.refused[worst.k] = worst.match
+            # searched against this union: again once it has grown (SEARCH_GROWTH), not in every estimation
+            self.memory.searches.put((self.names[worst.k], self.names[group.seed]),
+                                     (self.grids[worst.k], group.union.known_pixels,
+                                      frozenset(self.names[m] for m in group.members)))
+            todo = [c.k for c in failed if c is not worst]
 
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group

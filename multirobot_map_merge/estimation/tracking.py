@@ -64,8 +64,9 @@ def context(k: int, placed: Dict[int, np.ndarray], footprints: Dict[int, Box]) -
 
 def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
             placed: Dict[int, np.ndarray], footprints: Dict[int, Box], res: float,
-            s: EstimationSettings) -> Check:
-    """Whether grid k, placed at placed[k], still agrees with the union of the other placed grids near it."""
+            s: EstimationSettings, refine: bool = True) -> Check:
+    """Whether grid k, placed at placed[k], still agrees with the union of the other placed grids near it (refined
+    first unless `refine` is False: then the placement is judged as it is)."""
     box = footprints.get(k)
     others = {m: t for m, t in placed.items() if m != k}
     match = PairMatch(k, most_overlapping(box, footprints, others))
@@ -81,13 +82,16 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
     pk = prepared[k]
     prior = tf.inverse(target.px_to_map) @ placed[k] @ pk.px_to_map
     rng = np.random.default_rng(s.seed + 7919 * k)
-    # ICP from the prior, kept only if it ranks better: on a small common area ICP can slide off to a worse fit
-    candidates = [verify(pk, target, model, s) for model in (prior, icp(pk, target, prior, s, rng))]
-    best = max(candidates, key=lambda c: (plausible(c, s), c.score(s.conflict_weight)))
-    # then the polish, whatever the common area: the small corrections a kept placement needs as its map grows
-    # are what ICP misses (a live run kept a robot 0.6 degrees off with every shared wall agreeing)
-    polished = verify(pk, target, polish(pk, target, [best.transform], rng), s)
-    best = polished if plausible(polished, s) else best
+    candidates = [verify(pk, target, prior, s)]
+    best = candidates[0]
+    if refine:
+        # ICP from the prior, kept only if it ranks better: on a small common area ICP can slide off to a worse fit
+        candidates.append(verify(pk, target, icp(pk, target, prior, s, rng), s))
+        best = max(candidates, key=lambda c: (plausible(c, s), c.score(s.conflict_weight)))
+        # then the polish, whatever the common area: the small corrections a kept placement needs as its map grows
+        # are what ICP misses (a live run kept a robot 0.6 degrees off with every shared wall agreeing)
+        polished = verify(pk, target, polish(pk, target, [best.transform], rng), s)
+        best = polished if plausible(polished, s) else best
     reason = refusal(best, pk, target, s, onto_union=True)
     if reason and best is not candidates[0]:
         best = candidates[0]
@@ -148,7 +152,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         if not failed:
             break
         # one wrong map makes its neighbours contradict too: drop the worst, then check the others without it
-        worst = min(failed, key=lambda k: checks[k].match.best.agreement if checks[k].match.best else -1.0)
+        worst = least_agreeing([checks[k] for k in failed]).k
         del placed[worst]
         to_check = [k for k in placed if k != reference]
         if not to_check:
@@ -181,6 +185,12 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         if k in rechecked and rechecked[k].transform is not None:
             memory.checks.put(names[k], Verdict(grids[k], placed[k], seen(k), rechecked[k].match))
     return placed, list(checks.values())
+
+
+def least_agreeing(failed: Sequence[Check]) -> Check:
+    """Of failed checks, the one whose placement agrees least with the others (a wrong map makes its neighbours
+    contradict too: it is dropped first, and the others checked again without it)."""
+    return min(failed, key=lambda c: c.match.best.agreement if c.match.best is not None else -1.0)
 
 
 def reanchoring(ref: Check, box: Optional[Box]) -> Optional[Tuple[np.ndarray, float, float]]:

@@ -95,6 +95,12 @@ class UnionMap:
             self.footprints[k] = box
         self.version += 1
 
+    def remove(self, k: int) -> None:
+        """Member k leaves the union (the others keep their placements)."""
+        for members in (self.members, self.grids, self.parts, self.footprints):
+            members.pop(k, None)
+        self.version += 1
+
     def changed_under(self, part: PreparedGrid, model: np.ndarray, since: int) -> bool:
         """Whether the union differs, where grid `part` lies when placed by `model` (its pixels -> pixels of the
         union prepared at version `since`), from that union (True when unknown)."""
