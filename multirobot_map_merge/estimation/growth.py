@@ -268,7 +268,7 @@ class Grower:
         that joined since can show that it slid along a corridor (36 generated maps: one map placed 0.34 m off onto
         a union of 16, which the final union of 25 contradicts, agreement 0.89). One that fails leaves the group:
         the one that agrees least first, then those that failed are judged again without it, as tracking does."""
-        todo = [k for k in group.members if k in self.searched and k != group.seed]
+        todo = [k for k in group.members if k in self.searched and k not in (group.seed, self.reference)]
         for _ in range(MAX_PASSES):
             if not todo:
                 return
