@@ -403,3 +403,33 @@ def test_the_estimation_confirms_the_search_placements_of_the_merge_it_ends_with
     monkeypatch.setattr(Grower, 'confirm_searches', lambda self, group: confirmed.append(set(group.members)))
     result = estimate(grids, EstimationSettings())
     assert confirmed == [{k for k, t in enumerate(result.transforms) if t is not None}]
+
+
+def test_groups_merged_beside_a_larger_one_grow_by_descriptors_alone(repo_root, monkeypatch):
+    """merge_groups: two single grids that merge while a group of three is larger grow without the costly search
+    (a generated 36-map scenario searched every broken map in vain against such a group); merged into the largest,
+    the search runs."""
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grids, poses = _sample(repo_root, 'chain3')
+    grids = grids + _sample(repo_root, 'three_robots')[0]
+    s = EstimationSettings()
+    grower = _grower_of(grids, s)
+    big = grower.group(0)
+    for k in (1, 2):
+        big.union.add(k, grids[k], grower.prepared[k], tf.inverse(poses[0]) @ poses[k])
+    first, second = grower.group(3), grower.group(4)
+
+    def match_groups(self, small, onto):
+        accept = {small.seed, onto.seed} == {3, 4} or (onto is big and len(small.members) == 2)
+        m = PairMatch(small.seed, onto.seed, accepted=accept)
+        m.transform_m = np.eye(3)
+        return m
+
+    grown = []
+    monkeypatch.setattr(Grower, '_match_groups', match_groups)
+    monkeypatch.setattr(Grower, 'grow', lambda self, group, unplaced, search=True:
+                        grown.append((len(group.members), search)))
+    merged = grower.merge_groups([big, first, second], [5])
+    assert grown[0] == (2, False)
+    assert grown[-1] == (5, True) and len(merged) == 1
