@@ -2,7 +2,7 @@
 """Benchmark of the merging core (not a test: it prints figures and their ratio to the targets).
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
-    scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--generated NAMES] [--repeat N] [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
 Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
@@ -197,6 +197,9 @@ def targets(results: List[dict]) -> List[str]:
 # folder, registered in ROWS only when asked for (--large36) so the default table is unchanged.
 GENERATED_ROWS: Dict[str, Tuple[str, str]] = {
     'large36': ('large36', '36 maps, 9 broken (generated)'),
+    'large36_b': ('large36_b', '36 maps, 9 broken (generated, building 6)'),
+    'large36_c': ('large36_c', '36 maps, 9 broken (generated, building 7)'),
+    'large36_d': ('large36_d', '36 maps, 9 broken (generated, building 8)'),
 }
 LARGE36_TARGET_S = 3.0          # issue #13: one estimation of the 36 maps by merge_maps
 SHARED_EVAL = REPO / '..' / 'shared' / 'eval'
@@ -269,14 +272,25 @@ def score_lines(s: Optional[dict]) -> List[str]:
             f"pair error median {fmt(rot, digits=3)} deg, {fmt(trans)} cells"]
 
 
-def run_large36(cache: Path, repeat: int, markdown: Optional[Path]) -> int:
-    """Generate (if missing) and time the 36-map scenario as the 30-map row, then merge_maps + score it."""
-    name = 'large36'
+def run_generated(names: List[str], cache: Path, repeat: int, markdown: Optional[Path]) -> int:
+    """Generate (if missing) and time each generated scenario as the 30-map row, then merge_maps + score it."""
+    status, lines = 0, []
+    for name in names:
+        ok, block = generated_block(name, cache, repeat)
+        status = max(status, 0 if ok else 1)
+        lines += block + ['']
+        print('\n'.join(block + ['']), flush=True)
+    if markdown:
+        markdown.write_text('\n'.join(lines))
+    return status
+
+
+def generated_block(name: str, cache: Path, repeat: int) -> Tuple[bool, List[str]]:
+    """(whether timing and scoring worked, the lines to print) for one generated scenario."""
     try:
         gen_s = ensure_generated(cache, name)
     except RuntimeError as e:
-        print(f'bench_merge: {e}', file=sys.stderr)
-        return 2
+        return False, [f'bench_merge: {e}']
     folder = cache / GENERATED_ROWS[name][0]
     truth = json.loads((folder / 'truth.json').read_text())
     row = spawn_row(name, cache, repeat)
@@ -292,10 +306,7 @@ def run_large36(cache: Path, repeat: int, markdown: Optional[Path]) -> int:
                   f'under {LARGE36_TARGET_S:.0f} s: {t:.2f} s = '
                   f'{t / LARGE36_TARGET_S:.2f} x target ({"met" if t <= LARGE36_TARGET_S else "MISSED"})']
     lines += scenario_lines(truth) + score_lines(scored)
-    print('\n'.join(lines))
-    if markdown:
-        markdown.write_text('\n'.join(lines) + '\n')
-    return 0 if row is not None and scored is not None else 1
+    return row is not None and scored is not None, lines
 
 
 def main() -> int:
@@ -309,12 +320,21 @@ def main() -> int:
     ap.add_argument('--large36', type=Path, nargs='?', const=REPO / 'out' / 'bench', metavar='CACHE',
                     help='only the generated 36-map scenario (9 broken maps): made into CACHE/large36 if missing '
                          '(default out/bench), timed as the 30-map row, then merged by merge_maps and scored')
+    ap.add_argument('--generated', metavar='NAMES', type=lambda v: v.split(','),
+                    help=f'with --large36: these generated scenarios instead, comma-separated, made into CACHE/NAME '
+                         f'(the same fleet in other buildings: {", ".join(GENERATED_ROWS)}; a few minutes each)')
     ap.add_argument('--row', choices=list(ROWS) + list(GENERATED_ROWS), help=argparse.SUPPRESS)   # internal
     args = ap.parse_args()
     if args.large36 or args.row in GENERATED_ROWS:
         ROWS.update(GENERATED_ROWS)
+    if args.generated and not args.large36:
+        ap.error('--generated needs --large36 [CACHE]')
+    unknown = [n for n in args.generated or () if n not in GENERATED_ROWS]
+    if unknown:
+        ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(GENERATED_ROWS)})')
     if args.large36:
-        return run_large36(args.large36.resolve(), max(1, args.repeat), args.markdown)
+        return run_generated(args.generated or ['large36'], args.large36.resolve(), max(1, args.repeat),
+                             args.markdown)
     data_dir = args.data.resolve()
     if not data_dir.is_dir():
         print(f'bench_merge: data directory {data_dir} not found (use --data DIR)', file=sys.stderr)
