@@ -460,3 +460,23 @@ def test_an_early_small_map_is_found_on_the_union_by_the_search(repo_root):
     true_m = tf.inverse(tf.rigid(*starts['union'])) @ tf.rigid(*starts['robot_1'])   # metric robot map -> union
     rot, cells = _corner_error(robot, m.transform_m, true_m)
     assert rot < 1.0 and cells < 3.0, (rot, cells)
+
+
+def test_the_candidate_screen_counts_the_walls_on_a_small_common_area_of_a_large_map():
+    """quick_agreement on a large map (walls every 1.5 m over 20 x 20 m) placed onto a 2.5 x 2.5 m crop of its own
+    corner: of 600 walls sampled from all of them, too few land on the crop to count; sampled among those that do,
+    the right placement agrees and one shifted by 0.75 m both ways does not (before, both scored 0: the screen
+    dropped the candidate near the truth of two unions with 14 m2 in common)."""
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.hypotheses import quick_agreement
+    data = np.zeros((400, 400), np.int8)
+    data[::30, :] = 100
+    data[:, ::30] = 100
+    large = Grid(data, 0.05, (0.0, 0.0, 0.0), 'map')
+    corner = Grid(data[:50, :50].copy(), 0.05, (0.0, 0.0, 0.0), 'map')
+    s = EstimationSettings()
+    pl, pc = prepare(large, 0.05, s.feature), prepare(corner, 0.05, s.feature)
+    truth = np.linalg.inv(pc.px_to_map) @ pl.px_to_map
+    rng = np.random.default_rng(0)
+    assert quick_agreement(pl, pc, truth, s, rng) > 0.9
+    assert quick_agreement(pl, pc, tf.translation(15.0, 15.0) @ truth, s, rng) < 0.5
