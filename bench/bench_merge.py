@@ -276,8 +276,8 @@ def run_generated(names: List[str], cache: Path, repeat: int, markdown: Optional
     """Generate (if missing) and time each generated scenario as the 30-map row, then merge_maps + score it."""
     status, lines = 0, []
     for name in names:
-        ok, block = generated_block(name, cache, repeat)
-        status = max(status, 0 if ok else 1)
+        code, block = generated_block(name, cache, repeat)
+        status = max(status, code)
         lines += block + ['']
         print('\n'.join(block + ['']), flush=True)
     if markdown:
@@ -285,12 +285,13 @@ def run_generated(names: List[str], cache: Path, repeat: int, markdown: Optional
     return status
 
 
-def generated_block(name: str, cache: Path, repeat: int) -> Tuple[bool, List[str]]:
-    """(whether timing and scoring worked, the lines to print) for one generated scenario."""
+def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]]:
+    """(exit status: 0, 1 if timing or scoring failed, 2 if generating failed; the lines to print) for one generated
+    scenario."""
     try:
         gen_s = ensure_generated(cache, name)
     except RuntimeError as e:
-        return False, [f'bench_merge: {e}']
+        return 2, [f'bench_merge: {e}']
     folder = cache / GENERATED_ROWS[name][0]
     truth = json.loads((folder / 'truth.json').read_text())
     row = spawn_row(name, cache, repeat)
@@ -306,7 +307,7 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[bool, List[str
                   f'under {LARGE36_TARGET_S:.0f} s: {t:.2f} s = '
                   f'{t / LARGE36_TARGET_S:.2f} x target ({"met" if t <= LARGE36_TARGET_S else "MISSED"})']
     lines += scenario_lines(truth) + score_lines(scored)
-    return row is not None and scored is not None, lines
+    return (0 if row is not None and scored is not None else 1), lines
 
 
 def main() -> int:

@@ -274,15 +274,14 @@ class Grower:
                 return
             placed, footprints = dict(group.members), dict(group.union.footprints)
             checks = list(self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res,
-                                                          self.s, refine=False), todo))
+                                                          self.s, refine=False,
+                                                          failing='the merge contradicts the placement a search '
+                                                                  'found'), todo))
             failed = [c for c in checks if c.transform is None]
             if not failed:
                 return
             worst = least_agreeing(failed)
-            reason = worst.match.reason.replace('previous placement no longer holds', 'the merge contradicts the '
-                                                'placement a search found')
             group.leave(worst.k)
-            worst.match.reason = reason
             self.refused[worst.k] = worst.match
             # searched against this union: again once it has grown (SEARCH_GROWTH), not in every estimation
             self.memory.searches.put((self.names[worst.k], self.names[group.seed]),

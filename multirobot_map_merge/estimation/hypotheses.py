@@ -115,26 +115,25 @@ def quick_agreement(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: Es
     too few of the sampled walls land on j's known area to tell, the walls are sampled again among those that do: a
     union's walls on a small common area are few (one union onto another with 14 m2 in common: the screen dropped
     the one candidate near the truth, and two clusters of a generated building never merged)."""
-    agreement = _wall_agreement(pi.walls, pj, model, s, rng)
-    if agreement is None and len(pi.walls) > s.screen_points:
-        moved = np.rint(tf.apply(model, pi.walls)).astype(np.int64)
-        h, w = pj.work.shape
-        inside = np.flatnonzero((moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h))
-        landing = inside[pj.work[moved[inside, 1], moved[inside, 0]] >= 0]
-        agreement = _wall_agreement(pi.walls[landing], pj, model, s, rng)
-    return 0.0 if agreement is None else agreement
+    src = pi.walls
+    if len(src) > s.screen_points:
+        src = src[rng.choice(len(src), s.screen_points, replace=False)]
+    x, y = _landing_on_known(src, pj, model)
+    if len(x) < 20 and len(pi.walls) > s.screen_points:
+        x, y = _landing_on_known(pi.walls, pj, model)
+        if len(x) > s.screen_points:
+            pick = rng.choice(len(x), s.screen_points, replace=False)
+            x, y = x[pick], y[pick]
+    if len(x) < 20:
+        return 0.0
+    return float((pj.wall_distance[y, x] <= s.screen_tolerance).mean())
 
 
-def _wall_agreement(walls: np.ndarray, pj: PreparedGrid, model: np.ndarray, s: EstimationSettings,
-                    rng: np.random.Generator) -> Optional[float]:
-    """quick_agreement on up to s.screen_points of `walls`; None when fewer than 20 of them land on j's known area."""
-    if len(walls) > s.screen_points:
-        walls = walls[rng.choice(len(walls), s.screen_points, replace=False)]
+def _landing_on_known(walls: np.ndarray, pj: PreparedGrid, model: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Pixels (x, y) of j where those of `walls` (pixels of i) that `model` places on j's known area land."""
     moved = np.rint(tf.apply(model, walls)).astype(np.int64)
     h, w = pj.work.shape
     inside = (moved[:, 0] >= 0) & (moved[:, 1] >= 0) & (moved[:, 0] < w) & (moved[:, 1] < h)
     x, y = moved[inside, 0], moved[inside, 1]
     on_known = pj.work[y, x] >= 0
-    if on_known.sum() < 20:
-        return None
-    return float((pj.wall_distance[y[on_known], x[on_known]] <= s.screen_tolerance).mean())
+    return x[on_known], y[on_known]

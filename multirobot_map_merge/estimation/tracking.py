@@ -64,9 +64,11 @@ def context(k: int, placed: Dict[int, np.ndarray], footprints: Dict[int, Box]) -
 
 def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
             placed: Dict[int, np.ndarray], footprints: Dict[int, Box], res: float,
-            s: EstimationSettings, refine: bool = True) -> Check:
+            s: EstimationSettings, refine: bool = True,
+            failing: str = 'previous placement no longer holds') -> Check:
     """Whether grid k, placed at placed[k], still agrees with the union of the other placed grids near it (refined
-    first unless `refine` is False: then the placement is judged as it is)."""
+    first unless `refine` is False: then the placement is judged as it is); a refusal's reason starts with
+    `failing`."""
     box = footprints.get(k)
     others = {m: t for m, t in placed.items() if m != k}
     match = PairMatch(k, most_overlapping(box, footprints, others))
@@ -98,7 +100,7 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
         reason = refusal(best, pk, target, s, onto_union=True)
     match.best = best
     if reason:
-        match.reason = f'previous placement no longer holds: {reason}'
+        match.reason = f'{failing}: {reason}'
         return Check(k, None, match)
     metric = target.px_to_map @ best.transform @ tf.inverse(pk.px_to_map)
     match.accepted = True
