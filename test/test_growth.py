@@ -433,3 +433,68 @@ def test_groups_merged_beside_a_larger_one_grow_by_descriptors_alone(repo_root, 
     merged = grower.merge_groups([big, first, second], [5])
     assert grown[0] == (2, False)
     assert grown[-1] == (5, True) and len(merged) == 1
+
+
+def test_a_failed_search_waits_for_search_again_which_a_found_overlap_does_not_stop(repo_root):
+    """A grid whose search against a group failed in this estimation is not searched against it again as the group
+    grows (the broken maps of a generated building were searched in vain against every larger union), until
+    search_again, once the group has grown as far as it can otherwise. There a descriptor match that found a
+    contradicting overlap since (a wrong place on a large union of a repetitive building) does not stop it."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    grids = grids + [grids[2]]   # 3: a stand-in for a grid no search places
+    s = EstimationSettings()
+    grower = _grower_of(grids, s)
+    group = grower.group(0)
+    searched = []
+    grower.match = lambda k, g, search: (searched.append(k) if search else None) or PairMatch(k, g.seed, reason='x')
+    unplaced = [3]
+    assert not grower._search(group, unplaced) and searched == [3]
+    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])   # grown by far more than
+    group.union.add(2, grids[2], grower.prepared[2], tf.inverse(poses[0]) @ poses[2])   # SEARCH_GROWTH
+    assert not grower._search(group, unplaced) and searched == [3]
+    contradicting = Placement(np.eye(3), support=900, agreement=0.97, overlap_m2=30.0, deep_conflicts=40)
+    grower._admit(group, unplaced, [PairMatch(3, 0, reason='deep conflicts', best=contradicting)])
+    grower.search_again(group, unplaced)
+    assert searched == [3, 3] and not grower.again
+
+
+def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root, monkeypatch):
+    """search_grow: a group that cannot join the merge (its seed a broken map, in the generated 36-map buildings)
+    is taken apart; its other members regroup by descriptors without the seed and are matched onto the merge as a
+    group, before any of them is searched alone; the seed is searched alone. A regrouped group that does not join
+    is tried member by member in the end."""
+    from multirobot_map_merge.estimation.estimator import search_grow
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grids, poses = _sample(repo_root, 'three_robots')
+    grids = grids + _sample(repo_root, 'chain3')[0]
+    s = EstimationSettings()
+    grower = _grower_of(grids, s)
+    merge = grower.group(0)
+    for k in (1, 2):
+        merge.union.add(k, grids[k], grower.prepared[k], tf.inverse(poses[0]) @ poses[k])
+    failed = grower.group(3)
+    for k in (4, 5):
+        failed.union.add(k, grids[k], grower.prepared[k], np.eye(3))
+    events = []
+
+    def match(self, k, group, search):
+        events.append(('search' if search else 'match', k, frozenset(group.members)))
+        m = PairMatch(k, group.seed, accepted=not search and {k, group.seed} == {4, 5})
+        m.transform_m = np.eye(3)
+        return m
+
+    def match_groups(self, small, onto):
+        events.append(('groups', frozenset(small.members), frozenset(onto.members)))
+        return PairMatch(small.seed, onto.seed, reason='none')
+
+    monkeypatch.setattr(Grower, 'match', match)
+    monkeypatch.setattr(Grower, '_match_groups', match_groups)
+    groups = search_grow(grower, [merge, failed], 0)
+    assert set(groups[0].members) == {0, 1, 2}
+    regrouped = events.index(('groups', frozenset({4, 5}), frozenset({0, 1, 2})))
+    searched = {e[1]: n for n, e in reversed(list(enumerate(events))) if e[0] == 'search'}   # grid: first search
+    assert set(searched) == {3, 4, 5}
+    assert searched[4] > regrouped and searched[5] > regrouped

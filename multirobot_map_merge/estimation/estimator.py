@@ -63,10 +63,13 @@ def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSett
 def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -> List[Group]:
     """Groups formed by descriptors, grown by the correlation search: the largest one merges with the other groups
     (the unions first: a grid searched against the small union would be searched again against the merged one;
-    36 generated maps: 23 searches before, 15 now), searches the grids left alone (smallest first) and then tries
-    the members of the groups that did not merge one by one; while the grids outside it could still form a larger
-    group, the largest of those does the same with the rest."""
+    36 generated maps: 23 searches before, 15 now), searches the grids left alone (smallest first), then regroups
+    the members of the groups that did not merge without their seeds and tries those groups, and last searches
+    again the grids whose search failed, against the group grown as far as it could otherwise
+    (Grower.search_again); while the grids outside it could still form a larger group, the largest of those does
+    the same with the rest."""
     done: List[Group] = []
+    carried: List[Group] = []   # groups regrouped from failed ones, not yet tried member by member
     while groups:
         groups.sort(key=lambda g: (-len(g.members), reference not in g.members))
         main = groups[0]
@@ -79,11 +82,23 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
         merged.sort(key=lambda g: -len(g.members))
         main = merged[0]
         grower.grow(main, alone)
+        regrouped: List[Group] = []
         if len(merged) > 1:
             # a group that cannot join as a whole may hold a map that contradicts the merge (a broken map that
-            # paired by descriptors with a map whose part it shares): its members are tried one by one
-            alone += [k for g in merged[1:] for k in g.members]
+            # paired by descriptors with a map whose part it shares): in the generated 36-map buildings, the seed
+            # of every such group was a broken map (the largest maps seed groups, and a broken one overlaps two
+            # places); its other members that join the merge by descriptors do, the rest regroup by descriptors
+            # without it and try again as groups (a cluster not overlapping the merge yet: 8 searches in vain
+            # when tried one by one); the seeds and what regroups alone are searched one by one
+            rest = [k for g in merged[1:] for k in g.members if k != g.seed]
+            grower.grow(main, rest, search=False)
+            regrouped = grower.merge_groups([main] + descriptor_groups(grower, rest, settle=False), alone)
+            regrouped.sort(key=lambda g: -len(g.members))
+            main, regrouped = regrouped[0], regrouped[1:]
+            alone += [g.seed for g in merged[1:]] + [g.seed for g in regrouped if len(g.members) == 1]
+            regrouped = [g for g in regrouped if len(g.members) > 1]
             grower.grow(main, alone)
+        grower.search_again(main, alone)
         for earlier in list(done):
             # grown from the grids an earlier group left, it may overlap that one (a live demo: robots 4 and 6
             # paired by descriptors and searched the others in vain; robots 1-3 grew next, overlapping them by
@@ -92,10 +107,40 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             if len(both) == 1:
                 done.remove(earlier)
                 main = both[0]
+                grower.search_again(main, alone)
         done.append(main)
         done.sort(key=lambda g: -len(g.members))
-        groups = [grower.group(k, settle=False) for k in alone]
+        carried += regrouped
+        groups = regrouped + [grower.group(k, settle=False) for k in alone]
+    # a regrouped group that did not join the merge is tried member by member after all
+    for group in carried:
+        merge = done[0]
+        if group is merge or not merge.members.keys().isdisjoint(group.members):
+            continue
+        for holder in (done, groups):
+            if group in holder:
+                holder.remove(group)
+        members = list(group.members)
+        grower.grow(merge, members)
+        groups += [grower.group(k, settle=False) for k in members]
     return done + groups
+
+
+def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group] = None,
+                      first: Optional[int] = None, settle: bool = True) -> List[Group]:
+    """Groups formed by descriptors alone (cheap): the largest grid not placed yet (or `first`) seeds a group that
+    every other grid it can place joins, until none is left (removed from `unplaced`). A grid that contradicts
+    `merge` (by default the first group formed) seeds a group alone (Grower.outcast)."""
+    groups: List[Group] = []
+    unplaced.sort(key=lambda k: -grower.prepared[k].known_pixels)
+    while unplaced:
+        seed = first if first in unplaced else unplaced[0]
+        unplaced.remove(seed)
+        group = grower.group(seed, settle=settle)
+        if not grower.outcast(seed, merge if merge is not None else (groups[0] if groups else None)):
+            grower.grow(group, unplaced, search=False)
+        groups.append(group)
+    return groups
 
 
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
@@ -187,13 +232,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         # descriptors first (cheap): every grid joins a group or seeds one
         if groups:
             grower.grow(groups[0], unplaced, search=False)
-        while unplaced:
-            seed = preferred_reference if preferred_reference in unplaced else unplaced[0]
-            unplaced.remove(seed)
-            group = grower.group(seed)
-            if not grower.outcast(seed, groups[0] if groups else None):
-                grower.grow(group, unplaced, search=False)
-            groups.append(group)
+        groups += descriptor_groups(grower, unplaced, groups[0] if groups else None, preferred_reference)
         groups = search_grow(grower, groups, preferred_reference)
         chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
         grower.confirm_searches(chosen)

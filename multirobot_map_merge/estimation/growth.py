@@ -102,6 +102,9 @@ class Grower:
         self.found: Dict[int, List[frozenset]] = {}
         self.settled = 0
         self.searched: set = set()   # grids a correlation search placed (confirm_searches)
+        # (grid, group id) of the searches that failed in this estimation: searched again only by search_again
+        self.failed_searches: set = set()
+        self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
@@ -243,15 +246,21 @@ class Grower:
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
             if self.search_seconds >= self.s.search_budget_s:
                 return False   # the others are searched in a later estimation (their memory is not updated)
+            failed = (k, id(group)) in self.failed_searches
+            if failed and not self.again:
+                continue   # again once the group has grown as far as it can otherwise (search_again)
             key = (self.names[k], self.names[group.seed])
             last = self.memory.searches.get(key)
             if last is not None and self.memory.unchanged(last[0], self.grids[k]) and members >= last[2] \
                     and known < SEARCH_GROWTH * last[1]:
                 continue   # searched before (maybe in an earlier estimation), and neither has changed much since
-            if any(members <= group.members.keys() for members in self.found.get(k, ())):
+            if not failed and any(members <= group.members.keys() for members in self.found.get(k, ())):
                 # a refused match found where it overlaps some of the members and the maps disagree there (a search
                 # finds the same), even when a later match onto the grown union found no candidate (the new members'
-                # descriptors crowd the ratio test: 2 of the 36 generated maps were searched in vain)
+                # descriptors crowd the ratio test: 2 of the 36 generated maps were searched in vain); not a grid
+                # searched against a smaller union before: descriptors can find a wrong place on a large union of
+                # a repetitive building (a generated one: a map the search placed onto 12 members, whose matches
+                # onto 25 contradicted)
                 continue
             self.memory.searches.put(key, (self.grids[k], known, members))
             started = time.perf_counter()
@@ -260,7 +269,18 @@ class Grower:
             if self._admit(group, unplaced, [m]):
                 self.searched.add(k)
                 return True
+            self.failed_searches.add((k, id(group)))
         return False
+
+    def search_again(self, group: Group, unplaced: List[int]) -> None:
+        """Grow the group with the grids whose search against it failed in this estimation too (once it has grown
+        enough since, SEARCH_GROWTH). Until then they wait: as the groups merged, the broken maps of a generated
+        36-map building were searched in vain against each larger union in turn (36 searches, now 18)."""
+        self.again = True
+        try:
+            self.grow(group, unplaced)
+        finally:
+            self.again = False
 
     def confirm_searches(self, group: Group) -> None:
         """Judge the grids a search placed again, as they are, against the other members near them (tracking's
