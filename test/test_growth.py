@@ -373,6 +373,17 @@ def _grower_of(grids, s):
     return Grower(grids, prepared, 0.05, s, ThreadPoolExecutor(max_workers=2), 0, None)
 
 
+def _three_placed_and_three_more(repo_root, placed: str, more: str):
+    """A grower of the three maps of sample `placed` and then those of sample `more`, and a group of the first three
+    placed by their truth."""
+    grids, poses = _sample(repo_root, placed)
+    grower = _grower_of(grids + _sample(repo_root, more)[0], EstimationSettings())
+    group = grower.group(0)
+    for k in (1, 2):
+        group.union.add(k, grids[k], grower.prepared[k], tf.inverse(poses[0]) @ poses[k])
+    return grower, group
+
+
 @pytest.mark.parametrize('shift_m', [0.0, 0.4])
 def test_a_search_placement_the_final_merge_contradicts_leaves_it(repo_root, shift_m):
     """Robot 2 placed by a search, at the truth or slid by 0.4 m (as a search onto an early union can leave a map
@@ -411,13 +422,7 @@ def test_groups_merged_beside_a_larger_one_grow_by_descriptors_alone(repo_root, 
     the search runs."""
     from multirobot_map_merge.estimation.growth import Grower
     from multirobot_map_merge.estimation.pair import PairMatch
-    grids, poses = _sample(repo_root, 'chain3')
-    grids = grids + _sample(repo_root, 'three_robots')[0]
-    s = EstimationSettings()
-    grower = _grower_of(grids, s)
-    big = grower.group(0)
-    for k in (1, 2):
-        big.union.add(k, grids[k], grower.prepared[k], tf.inverse(poses[0]) @ poses[k])
+    grower, big = _three_placed_and_three_more(repo_root, 'chain3', 'three_robots')
     first, second = grower.group(3), grower.group(4)
 
     def match_groups(self, small, onto):
@@ -468,16 +473,10 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
     from multirobot_map_merge.estimation.estimator import search_grow
     from multirobot_map_merge.estimation.growth import Grower
     from multirobot_map_merge.estimation.pair import PairMatch
-    grids, poses = _sample(repo_root, 'three_robots')
-    grids = grids + _sample(repo_root, 'chain3')[0]
-    s = EstimationSettings()
-    grower = _grower_of(grids, s)
-    merge = grower.group(0)
-    for k in (1, 2):
-        merge.union.add(k, grids[k], grower.prepared[k], tf.inverse(poses[0]) @ poses[k])
+    grower, merge = _three_placed_and_three_more(repo_root, 'three_robots', 'chain3')
     failed = grower.group(3)
     for k in (4, 5):
-        failed.union.add(k, grids[k], grower.prepared[k], np.eye(3))
+        failed.union.add(k, grower.grids[k], grower.prepared[k], np.eye(3))
     events = []
 
     def match(self, k, group, search):
