@@ -3,6 +3,7 @@
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--generated NAMES] [--repeat N] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py --reveal SHARES [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
 Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
@@ -310,6 +311,34 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
     return (0 if row is not None and scored is not None else 1), lines
 
 
+def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
+    """The 30-map scenario revealed as a fleet explores it (bench/reveal.py: 2 m tiles, nearest to each robot's start
+    first, as bench_node publishes them), estimated afresh at each share of the reveal and scored: maps placed, and
+    those placed wrong with their errors."""
+    from multirobot_map_merge.estimation.estimator import estimate
+    from multirobot_map_merge.estimation.settings import EstimationSettings
+    from multirobot_map_merge.grid import Grid
+    from reveal import reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of
+    score = scorer()
+    if score is None:
+        return ['bench_merge: ../shared/eval/score.py not found: nothing to score']
+    grids, truth = load_scenario(data_dir / ROWS['large30'][0])
+    orders = [reveal_order(g) for g in grids]
+    lines = [f'{ROWS["large30"][0]} revealed tile by tile, estimated afresh (merge_maps settings) and scored; '
+             f'load average {os.getloadavg()[0]:.2f}', '',
+             '| share revealed | known m2 (median map) | placed | placed wrong | estimate (s) | wrong: file, degrees, '
+             'cells |', '|---|---|---|---|---|---|']
+    for share in shares:
+        shown = [Grid(revealed(g, tiles, tiles_due(tiles, n, share)), g.resolution, g.origin, g.frame_id)
+                 for g, (tiles, n) in zip(grids, orders)]
+        found = estimate(shown, EstimationSettings())
+        scored = score_placements(score, truth, dict(enumerate(found.transforms)))
+        known = statistics.median(float((s.data >= 0).sum()) * s.resolution ** 2 for s in shown)
+        lines.append(f'| {share:.2f} | {known:.0f} | {scored["included"]} | {scored["wrong"]} | {found.seconds:.2f} | '
+                     f'{"; ".join(f"{f} {r:.2f} {c:.1f}" for f, r, c in wrong_of(scored))} |')
+    return lines
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--data', type=Path, default=REPO / '..' / 'shared' / 'data' / 'dev')
@@ -324,6 +353,9 @@ def main() -> int:
     ap.add_argument('--generated', metavar='NAMES', type=lambda v: v.split(','),
                     help=f'with --large36: these generated scenarios instead, comma-separated, made into CACHE/NAME '
                          f'(the same fleet in other buildings: {", ".join(GENERATED_ROWS)}; a few minutes each)')
+    ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
+                    help='only the 30-map scenario revealed as a fleet explores it, estimated afresh at these shares '
+                         'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
     ap.add_argument('--row', choices=list(ROWS) + list(GENERATED_ROWS), help=argparse.SUPPRESS)   # internal
     args = ap.parse_args()
     if args.large36 or args.row in GENERATED_ROWS:
@@ -342,6 +374,12 @@ def main() -> int:
         return 2
     if args.row:
         print(json.dumps(run_row(args.row, data_dir, max(1, args.repeat))))
+        return 0
+    if args.reveal:
+        lines = run_reveal(data_dir, args.reveal)
+        print('\n'.join(lines))
+        if args.markdown:
+            args.markdown.write_text('\n'.join(lines) + '\n')
         return 0
     if args.curve:
         lines = [f'estimation cost curve (first n maps of {ROWS["large30"][0]}), {max(1, args.repeat)} repeat(s), '

@@ -3,13 +3,17 @@
 
     scripts/env.sh python bench/bench_node.py [--duration 600] [--robots 30] [--content reveal|grow|static]
         [--late N] [--map-rate 1] [--update-rate 1] [--merging-rate 4] [--param name:=value ...] [--json FILE]
+        [--show-wrong]
 
 It starts its own roscore (on a free port), a publisher process for the robots of the large dev scenario
 (../shared/data/dev/large30_hospital_section, or --data) and the map_merge node, then measures from outside:
   * merged maps: received per second on the merged topic (overall, and the lowest 10 s window), longest gap;
   * node CPU in cores: utime + stime of the node process (/proc), overall and per sampling interval;
   * node memory: RSS sampled over time, its peak (VmHWM), the RSS growth over the second half of the run;
-  * estimation time: `estimation_time` of every ~status, and how many robots the last one includes.
+  * estimation time: `estimation_time` of every ~status, and how many robots the last one includes;
+  * wrong placements: every ~status's placements scored by the shared scorer (../shared/eval/score.py) against the
+    scenario's truth: robots included but placed wrong (a broken map placed consistently with one of its parts is
+    not wrong), the most in any one status and in how many statuses, so that "never wrong" is measured live too.
 The node runs in estimation mode (known_init_poses false) at merging_rate 4; everything else keeps the node's
 defaults (discovery every 20 s, estimation_rate 0.5, estimation_confidence 1.0) unless --param.
 
@@ -45,9 +49,10 @@ from typing import Dict, List, Optional
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+from multirobot_map_merge import transforms as tf  # noqa: E402
+from reveal import TILE, reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of  # noqa: E402
+
 DEFAULT_DATA = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
-TILE = 40            # cells (2 m at 0.05 m/cell)
-START_RADIUS = 3.0   # m known around the start at t = 0 (reveal)
 TARGET_HZ, TARGET_CORES = 4.0, 1.0
 CLK_TCK = os.sysconf('SC_CLK_TCK')
 
@@ -70,17 +75,9 @@ def run_publisher(args: argparse.Namespace) -> None:
     for k, m in enumerate(truth['maps'][:args.robots]):
         ns = f'robot_{k:02d}'
         grid = load_map(str(Path(args.data) / m['file']), ns + '/map')
-        h, w = grid.data.shape
-        tiles = [(r, c) for r in range(0, h, TILE) for c in range(0, w, TILE)
-                 if (grid.data[r:r + TILE, c:c + TILE] >= 0).any()]
-        # tile centre distance from the map frame origin (the robot's start): nearest revealed first
-        centre = lambda rc: np.hypot(*(grid.cell_to_map() @ [rc[1] + TILE / 2, rc[0] + TILE / 2, 1.0])[:2])
-        tiles.sort(key=centre)
-        shown = np.full_like(grid.data, -1)
-        n_start = sum(centre(t) <= START_RADIUS for t in tiles) if args.content != 'static' else len(tiles)
-        n_start = max(n_start, 1)
-        for r, c in tiles[:n_start]:
-            shown[r:r + TILE, c:c + TILE] = grid.data[r:r + TILE, c:c + TILE]
+        tiles, n_start = reveal_order(grid)
+        n_start = len(tiles) if args.content == 'static' else n_start
+        shown = revealed(grid, tiles, n_start)
         robots.append(dict(ns=ns, grid=grid, tiles=tiles, revealed=n_start, shown=shown, map_pub=None, upd_pub=None,
                            box=tile_box(tiles[:n_start], grid.data.shape), phase=rng.uniform(0.0, 1.0)))
     reveal_s = args.reveal if args.reveal is not None else args.duration / 2.0
@@ -114,7 +111,7 @@ def run_publisher(args: argparse.Namespace) -> None:
     def updates(robot, t: float) -> List[OccupancyGridUpdate]:
         """One message per tile revealed since the last tick; once all is known, one unchanged tile."""
         tiles, g = robot['tiles'], robot['grid']
-        due = len(tiles) if reveal_s <= 0 else int(math.ceil(len(tiles) * min(t / reveal_s, 1.0)))
+        due = len(tiles) if reveal_s <= 0 else tiles_due(tiles, 0, t / reveal_s)
         out = []
         while args.content != 'static' and robot['revealed'] < due:
             r, c = tiles[robot['revealed']]
@@ -273,10 +270,11 @@ def run(args: argparse.Namespace) -> dict:
                 merged_times.append(time.monotonic())
 
         def on_status(msg) -> None:
+            placed = {r.robot_namespace.strip('/'): (r.included, _pose_of(r.transform)) for r in msg.robots}
             with lock:
                 statuses.append(dict(t=time.monotonic(), estimation_time=msg.estimation_time,
                                      robots=len(msg.robots), included=sum(r.included for r in msg.robots),
-                                     pairs_used=sum(p.used for p in msg.pairs)))
+                                     pairs_used=sum(p.used for p in msg.pairs), placed=placed))
         rospy.Subscriber('/map_merge/map', rospy.AnyMsg, on_merged, queue_size=100, buff_size=1 << 26)
         rospy.Subscriber('/map_merge/map_merge/status', MergeStatus, on_status, queue_size=10)
 
@@ -328,6 +326,9 @@ def run(args: argparse.Namespace) -> dict:
         picked = [s['cores'] for s in samples if lo < s['t'] <= hi]
         return sum(picked) / len(picked) if picked else None
     est = [s['estimation_time'] for s in sts]
+    wrong = wrong_placements(args.data, [s['placed'] for s in sts], args.show_wrong)
+    for s in sts:
+        s.pop('placed')
     result = dict(
         robots=args.robots, content=args.content, duration_s=round(t_end - t_start, 1), merging_rate=args.merging_rate,
         merged_msgs=len(in_run), merged_hz=len(in_run) / (t_end - t_start),
@@ -341,8 +342,32 @@ def run(args: argparse.Namespace) -> dict:
         estimations=len(est), estimation_s_median=statistics.median(est) if est else None,
         estimation_s_max=max(est) if est else None,
         included_last=sts[-1]['included'] if sts else 0, sigint_exit_s=exit_s,
+        wrong_max=max(wrong) if wrong else None, statuses_with_wrong=sum(w > 0 for w in wrong) if wrong else None,
         machine_load_avg=statistics.mean(s['load1'] for s in samples), cpu_count=os.cpu_count(), samples=samples)
     return result
+
+
+def _pose_of(transform) -> tuple:
+    """(x, y, yaw) of a geometry_msgs/Transform turning about z only (the node's robot map -> world)."""
+    q = transform.rotation
+    return transform.translation.x, transform.translation.y, 2.0 * math.atan2(q.z, q.w)
+
+
+def wrong_placements(data: Path, statuses: List[Dict[str, tuple]], verbose: bool) -> Optional[List[int]]:
+    """For each ~status (robot name -> (included, (x, y, yaw))): how many included robots the shared scorer finds
+    placed wrong against the scenario's truth (robot_NN is the scenario's map NN). None without the scorer."""
+    score = scorer()
+    if score is None:
+        return None
+    truth = json.loads((data / 'truth.json').read_text())
+    counts = []
+    for placed in statuses:
+        scored = score_placements(score, truth, {int(name.split('_')[-1]): tf.rigid(*pose) if included else None
+                                                 for name, (included, pose) in placed.items()})
+        counts.append(scored['wrong'])
+        if verbose and scored['wrong']:
+            print(f"  placed wrong (reference {scored['reference']}; file, degrees, cells): {wrong_of(scored)}")
+    return counts
 
 
 def report(r: dict) -> None:
@@ -363,6 +388,8 @@ def report(r: dict) -> None:
          f"max {f(r['estimation_s_max'])}, {r['estimations']} estimations, last includes "
          f"{r['included_last']}/{r['robots']} robots"),
         ('exit after SIGINT (s)', f(r['sigint_exit_s']), '< 2', ''),
+        ('robots placed wrong (shared scorer)', f"{f(r['wrong_max'], '{:.0f}')} at most", '0',
+         f"in {f(r['statuses_with_wrong'], '{:.0f}')} of {r['estimations']} statuses"),
     ]
     print(f"(machine: {r['cpu_count']} cores, 1-minute load average {r['machine_load_avg']:.1f} on average "
           'during the run, this benchmark included)')
@@ -387,6 +414,8 @@ def parse_args(argv: Optional[List[str]] = None) -> argparse.Namespace:
     ap.add_argument('--param', action='append', default=[], help='extra node parameter name:=value')
     ap.add_argument('--sample', type=float, default=10.0, help='seconds between CPU/memory samples')
     ap.add_argument('--json', type=Path, help='write the figures and samples here')
+    ap.add_argument('--show-wrong', action='store_true',
+                    help='print the robots placed wrong in each ~status (file, rotation and corner errors)')
     ap.add_argument('--publisher', action='store_true', help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if not (args.map_rate > 0 and args.update_rate > 0 and args.duration > 0 and args.robots > 0):
