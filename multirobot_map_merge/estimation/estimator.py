@@ -92,11 +92,11 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             # when tried one by one); the seeds and what regroups alone are searched one by one
             rest = [k for g in merged[1:] for k in g.members if k != g.seed]
             grower.grow(main, rest, search=False)
-            regrouped = grower.merge_groups([main] + descriptor_groups(grower, rest, settle=False), alone)
-            regrouped.sort(key=lambda g: -len(g.members))
-            main, regrouped = regrouped[0], regrouped[1:]
-            alone += [g.seed for g in merged[1:]] + [g.seed for g in regrouped if len(g.members) == 1]
-            regrouped = [g for g in regrouped if len(g.members) > 1]
+            tried = grower.merge_groups([main] + descriptor_groups(grower, rest, settle=False), alone)
+            tried.sort(key=lambda g: -len(g.members))
+            main = tried[0]
+            alone += [g.seed for g in merged[1:]] + [g.seed for g in tried[1:] if len(g.members) == 1]
+            regrouped = [g for g in tried[1:] if len(g.members) > 1]
             grower.grow(main, alone)
         grower.search_again(main, alone)
         for earlier in list(done):
