@@ -9,8 +9,8 @@ from map_msgs.msg import OccupancyGridUpdate
 from nav_msgs.msg import OccupancyGrid
 
 from multirobot_map_merge.grid import MAX_CELLS, Grid, GridError
-from multirobot_map_merge.ros.conversions import (GridUpdate, grid_from_msg, grid_to_msg, update_from_msg,
-                                                  update_to_msg, yaw_from_quaternion)
+from multirobot_map_merge.ros.conversions import (GridUpdate, grid_from_msg, grid_to_msg, restamped,
+                                                  update_from_msg, update_to_msg, yaw_from_quaternion)
 
 
 def random_grid(h=5, w=7, seed=0):
@@ -46,6 +46,22 @@ def test_round_trip_through_the_wire():
     assert back.origin == pytest.approx(g.origin, abs=1e-9)
     assert back.frame_id == 'robot1/map'
     assert back.stamp == pytest.approx(12.5)
+
+
+def test_packed_message_sends_the_same_bytes_and_keeps_its_own_copy():
+    rospy_numpy_msg = pytest.importorskip('rospy.numpy_msg')
+    packed = rospy_numpy_msg.numpy_msg(OccupancyGrid)
+    g = random_grid(40, 30, seed=3)
+    plain, fast = grid_to_msg(g, stamp=7.5, frame_id='world'), grid_to_msg(g, 7.5, 'world', packed_class=packed)
+    assert isinstance(fast, packed) and isinstance(fast, OccupancyGrid)   # a publisher of OccupancyGrid takes it
+    a, b = io.BytesIO(), io.BytesIO()
+    plain.serialize(a)
+    fast.serialize(b)
+    assert a.getvalue() == b.getvalue()
+    g.data[:] = 0   # the grid is changed later: the message (latched, re-sent) is not
+    np.testing.assert_array_equal(grid_from_msg(wire_round_trip(fast)).data, grid_from_msg(plain).data)
+    again = restamped(fast, genpy.Time(9, 0))
+    assert type(again) is packed and again.header.stamp == genpy.Time(9, 0) and again.data is fast.data
 
 
 def test_row_major_layout_row0_first():

@@ -9,7 +9,9 @@ the caller can warn naming the robot (throttled), as the map_merge node does.
 Speed (measured, 2000 x 2000 grid): genpy packs int8[] with struct.pack(*data), so it needs a sequence of Python
 ints; bytes are refused for int8[] ("Only uint8[] can be a string"). ``ndarray.tolist()`` (~30 ms) + serialize
 (~50 ms) beats passing the ndarray itself (~250 ms to serialize). On receipt, genpy gives a tuple; np.fromiter
-(~85 ms) is the fastest conversion without numpy_msg; an ndarray (numpy_msg) is taken as is.
+(~85 ms) is the fastest conversion without numpy_msg; an ndarray (numpy_msg) is taken as is. A numpy_msg
+OccupancyGrid (``packed_class`` of grid_to_msg) serializes its ndarray as bytes, the same bytes on the wire:
+0.02 ms instead of 2.8 ms for 170 000 cells, 0.06 instead of 17 ms for a million.
 """
 from __future__ import annotations
 
@@ -99,10 +101,13 @@ def grid_from_msg(msg: OccupancyGrid) -> Grid:
     return grid
 
 
-def grid_to_msg(grid: Grid, stamp: StampLike = None, frame_id: Optional[str] = None) -> OccupancyGrid:
-    """Grid -> a fresh OccupancyGrid; stamp (seconds or genpy.Time) and frame_id default to the grid's."""
+def grid_to_msg(grid: Grid, stamp: StampLike = None, frame_id: Optional[str] = None,
+                packed_class: Optional[type] = None) -> OccupancyGrid:
+    """Grid -> a fresh OccupancyGrid; stamp (seconds or genpy.Time) and frame_id default to the grid's. With
+    `packed_class` (rospy.numpy_msg.numpy_msg(OccupancyGrid)), a message of that class holding a copy of the cells
+    as an int8 array (see the module doc)."""
     t = _to_time(stamp, grid.stamp)
-    msg = OccupancyGrid()
+    msg = packed_class() if packed_class is not None else OccupancyGrid()
     msg.header.stamp = t
     msg.header.frame_id = grid.frame_id if frame_id is None else frame_id
     msg.info.map_load_time = genpy.Time(t.secs, t.nsecs)
@@ -112,7 +117,10 @@ def grid_to_msg(grid: Grid, stamp: StampLike = None, frame_id: Optional[str] = N
     msg.info.origin.position.x, msg.info.origin.position.y = ox, oy
     msg.info.origin.orientation.z = math.sin(oyaw / 2.0)
     msg.info.origin.orientation.w = math.cos(oyaw / 2.0)
-    msg.data = grid.data.reshape(-1).tolist()   # fastest form genpy's int8[] packer accepts (see module doc)
+    if packed_class is not None:
+        msg.data = grid.data.reshape(-1).astype(np.int8)   # a copy: the message is kept (latched, re-sent)
+    else:
+        msg.data = grid.data.reshape(-1).tolist()   # fastest form genpy's int8[] packer accepts (see module doc)
     return msg
 
 
@@ -164,8 +172,8 @@ def center_origin(merged: Grid) -> Tuple[float, float, float]:
 
 
 def restamped(msg: OccupancyGrid, stamp) -> OccupancyGrid:
-    """A fresh copy of a merged map message with a new stamp; the (never modified) data list is shared."""
-    out = OccupancyGrid()
+    """A fresh copy of a merged map message (of its class) with a new stamp; the (never modified) data is shared."""
+    out = type(msg)()
     out.header.frame_id = msg.header.frame_id
     out.header.stamp = stamp
     out.info = copy.deepcopy(msg.info)
