@@ -155,7 +155,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                 latency.joinable(joinable[n], [n])
         latency.included(done, transforms)
         placed = sorted(transforms)
-        line = (f't {now:7.1f}' + (f'-{done:.2f}' if args.pace > 0 else '')
+        line = ((f't {now:7.2f}-{done:.2f}' if args.pace > 0 else f't {now:7.1f}')
                 + f'  placed {len(placed)}/{len(names)} (tracked {result.tracked}) in {took:.2f} s'
                 + (f'; node had {len(node_placed)}' if node_placed is not None else '')
                 + worst_error(transforms, reference, starts, dict(zip(names, grids))))
