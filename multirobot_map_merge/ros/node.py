@@ -98,9 +98,8 @@ class MapMergeNode:
         self._cache_capacity = 0                      # estimation thread only
         self._last_merge = None                       # merging thread only: (inputs, message, world_from_merged)
         self._map_pub = rospy.Publisher(params.merged_map_topic, OccupancyGrid, queue_size=50, latch=True)
-        # merged maps go out as numpy_msg messages (the same bytes, serialized ~100 times faster: conversions.py),
-        # whose generated serializer calls ndarray.tostring; a numpy without it gets plain messages
-        self._packed_map = numpy_msg(OccupancyGrid) if hasattr(np.ndarray, 'tostring') else None
+        # merged maps go out as numpy_msg messages: the same bytes, serialized ~100 times faster (conversions.py)
+        self._packed_map = numpy_msg(OccupancyGrid)
         self._status_pub = rospy.Publisher('~status', MergeStatus, queue_size=1, latch=True)
         self._tf = None
         if params.publish_tf:
