@@ -15,6 +15,7 @@ import rospy
 import tf2_ros
 from geometry_msgs.msg import PoseStamped, Quaternion
 from nav_msgs.msg import OccupancyGrid
+from rospy.numpy_msg import numpy_msg
 
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.ros.conversions import grid_from_msg
@@ -44,7 +45,8 @@ class TeamLink:
             self._pub = rospy.Publisher(params.team_topic, PoseStamped, queue_size=10)
             rospy.Subscriber(params.team_topic, PoseStamped, self._on_team_goal, queue_size=50)
         if params.team_map_topic:
-            rospy.Subscriber(params.team_map_topic, OccupancyGrid, self._on_team_map, queue_size=1,
+            # numpy_msg: the merged map's cells as an ndarray (see node.py)
+            rospy.Subscriber(params.team_map_topic, numpy_msg(OccupancyGrid), self._on_team_map, queue_size=1,
                              buff_size=1 << 25)
 
     # ------------------------------------------------------------------ callbacks: store only

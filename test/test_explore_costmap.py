@@ -187,3 +187,35 @@ def test_probability_map_finds_frontiers_that_the_original_misses():
     # the uncertain rim (value 45, between the thresholds) counts as unknown: the frontier runs along it
     xs = np.concatenate([f.points[:, 0] for f in found[True]])
     assert np.isclose(xs, 1.95).any()
+
+
+def test_maps_received_as_numpy_msg_give_the_same_costmap_as_plain_ones():
+    """The node subscribes with numpy_msg (cells as read-only int8 arrays, not tuples of ints): the costmap made
+    from the same wire bytes must not differ, for full maps and for updates."""
+    io = pytest.importorskip('io')
+    numpy_msg = pytest.importorskip('rospy.numpy_msg').numpy_msg
+    OccupancyGrid = pytest.importorskip('nav_msgs.msg').OccupancyGrid
+    OccupancyGridUpdate = pytest.importorskip('map_msgs.msg').OccupancyGridUpdate
+    rng = np.random.default_rng(5)
+    full = OccupancyGrid()
+    full.info.width, full.info.height, full.info.resolution = 7, 5, 0.05
+    full.data = rng.choice([-1, 0, 30, 100, 120], 35).astype(int).tolist()   # 120: invalid, read as unknown
+    patch = OccupancyGridUpdate(x=2, y=1, width=3, height=2, data=[100, -1, 0, 55, 100, 0])
+
+    def received(msg, cls):
+        wire = io.BytesIO()
+        msg.serialize(wire)
+        return cls().deserialize(wire.getvalue())
+
+    maps = []
+    for grid_cls, update_cls in ((OccupancyGrid, OccupancyGridUpdate),
+                                 (numpy_msg(OccupancyGrid), numpy_msg(OccupancyGridUpdate))):
+        m, u = received(full, grid_cls), received(patch, update_cls)
+        cm = Costmap()
+        invalid = cm.update_full(m.info.width, m.info.height, m.info.resolution, 0.0, 0.0, m.data, 'map')
+        invalid += cm.update_partial(u.x, u.y, u.width, u.height, u.data, 'map')
+        maps.append((cm.data.copy(), invalid, type(m.data)))
+    (plain, plain_invalid, plain_type), (fast, fast_invalid, fast_type) = maps
+    assert fast_type is np.ndarray and plain_type is not np.ndarray
+    np.testing.assert_array_equal(fast, plain)
+    assert fast_invalid == plain_invalid == int(np.count_nonzero(np.array(full.data) == 120))
