@@ -10,7 +10,8 @@ over a few seeds, and per run and per fleet size:
     and at the end;
   * map_merge CPU in cores (utime + stime from /proc of the map_merge process the demo started, sampled every
     --sample s): average over the run and the highest --window s window; and CPU seconds per sim second, which
-    does not depend on the speed-up;
+    does not depend on the speed-up; the same average for all explorers together and for the simulator (they share
+    the machine with map_merge: what they take, its estimations wait for);
   * the final placement error against the ground truth (largest rotation and corner error over the robots).
 
     scripts/env.sh python bench/bench_fleet.py [--robots 3 6 12] [--seeds 1 2] [--speedup X] [--world-seed S]
@@ -58,41 +59,54 @@ def descendants(root: int) -> List[int]:
     return out
 
 
-def find_node(root: int, name: str) -> Optional[int]:
-    """The pid of the ROS node ``__name:=name`` started below ``root``, if running."""
+NODES = ('map_merge', 'explore', 'fleet_sim')   # CPU sampled per node name (explore: every explorer together)
+Samples = Dict[str, List[Tuple[float, float]]]   # node name -> (wall s, CPU s) samples
+
+
+def find_nodes(root: int) -> Dict[str, List[int]]:
+    """The pids of the ROS nodes named in NODES (``__name:=name``) started below ``root`` and running."""
+    found: Dict[str, List[int]] = {}
     for pid in descendants(root):
         try:
             argv = Path(f'/proc/{pid}/cmdline').read_bytes().split(b'\0')
         except OSError:
             continue
-        if f'__name:={name}'.encode() in argv:
-            return pid
-    return None
+        for name in NODES:
+            if f'__name:={name}'.encode() in argv:
+                found.setdefault(name, []).append(pid)
+    return found
 
 
-def run_demo(robots: int, seed: int, out: Path, args: argparse.Namespace) -> Tuple[int, List[Tuple[float, float]]]:
-    """Runs the demo once; returns its exit code and the (wall s, CPU s) samples of its map_merge process."""
+def run_demo(robots: int, seed: int, out: Path, args: argparse.Namespace) -> Tuple[int, Samples]:
+    """Runs the demo once; returns its exit code and the CPU samples of its nodes (NODES): per name, the CPU
+    seconds its processes have used so far, from the first sample that found it until one of them exited."""
     cmd = ['bash', str(REPO / 'scripts' / 'demo.sh'), '--robots', str(robots), '--seed', str(seed),
            '--world-seed', str(args.world_seed), '--out', str(out)]
     for opt in ('speedup', 'limit_sim', 'limit_wall'):
         if getattr(args, opt) is not None:
             cmd += ['--' + opt.replace('_', '-'), str(getattr(args, opt))]
     out.mkdir(parents=True, exist_ok=True)
-    samples: List[Tuple[float, float]] = []
+    samples: Samples = {name: [] for name in NODES}
     with open(out / 'demo.log', 'w') as log:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True)
-        pid, ended = None, False
+        pids: Dict[str, List[int]] = {}
+        ended = set()
         try:
             while proc.poll() is None:
                 time.sleep(args.sample)
-                if pid is None:
-                    pid = find_node(proc.pid, 'map_merge')
-                if pid is not None and not ended:
+                # the explorers start over a second or two: their set grows until every node has been seen once
+                for name, found in find_nodes(proc.pid).items():
+                    if name not in ended and len(found) > len(pids.get(name, [])):
+                        pids[name] = found
+                        samples[name].clear()   # a new process: its CPU so far is not comparable
+                for name, some in pids.items():
+                    if name in ended:
+                        continue
                     try:
-                        samples.append((time.monotonic(), proc_cpu_seconds(pid)))
+                        samples[name].append((time.monotonic(), sum(proc_cpu_seconds(p) for p in some)))
                     except (OSError, IndexError, ValueError):
-                        ended = True     # the node has exited: keep the samples so far
+                        ended.add(name)     # a node has exited: keep the samples so far
         except KeyboardInterrupt:
             os.killpg(proc.pid, signal.SIGINT)
             proc.wait(timeout=60)
@@ -124,7 +138,7 @@ def at_time(progress: List[dict], sim_s: float) -> Optional[dict]:
     return before[-1] if before else None
 
 
-def run_figures(summary: dict, samples: List[Tuple[float, float]], args: argparse.Namespace) -> dict:
+def run_figures(summary: dict, samples: Samples, args: argparse.Namespace) -> dict:
     rows = summary['placement']
     end = summary['sim_time_s']
     latencies = [r['latency_s'] for r in rows if r.get('latency_s') is not None]
@@ -137,7 +151,7 @@ def run_figures(summary: dict, samples: List[Tuple[float, float]], args: argpars
     for t in args.at:
         p = at_time(progress, t)
         checkpoints[str(t)] = None if p is None else {'explored_share': p['explored_share'], 'merged': p['merged']}
-    cpu = cpu_figures(samples, args.window)
+    cpu = cpu_figures(samples['map_merge'], args.window)
     return dict(
         robots=summary['robots'], end=summary['end'], sim_s=end, real_s=summary['real_time_s'],
         speedup=summary['speedup'], explored_share=summary['explored_share'],
@@ -147,7 +161,9 @@ def run_figures(summary: dict, samples: List[Tuple[float, float]], args: argpars
         merged_end=len(placed), checkpoints=checkpoints,
         rotation_error_max_deg=max((r['rotation_error_deg'] for r in placed), default=None),
         corner_error_max_m=max((r['corner_error_m'] for r in placed), default=None),
-        cpu_s_per_sim_s=cpu['cpu_s'] / end if cpu['cpu_s'] is not None and end > 0 else None, **cpu)
+        cpu_s_per_sim_s=cpu['cpu_s'] / end if cpu['cpu_s'] is not None and end > 0 else None, **cpu,
+        explore_cores_avg=cpu_figures(samples['explore'], args.window)['cpu_cores_avg'],
+        sim_cores_avg=cpu_figures(samples['fleet_sim'], args.window)['cpu_cores_avg'])
 
 
 def _f(v, fmt='{:.1f}') -> str:
@@ -174,8 +190,9 @@ def _checkpoint(c: Optional[dict]) -> str:
 def report(runs: List[dict], args: argparse.Namespace) -> None:
     at = ' | '.join(f'at {t:g} s' for t in args.at)
     print(f'\n| robots | seed | sim s (real s, x) | latency median | latency max | merged | {at} | end explored '
-          f'| map_merge cores avg / peak {args.window:g} s | CPU s per sim s | max error deg / cm |')
-    print('|' + '---|' * (10 + len(args.at)))
+          f'| map_merge cores avg / peak {args.window:g} s | CPU s per sim s | explorers / simulator cores avg '
+          f'| max error deg / cm |')
+    print('|' + '---|' * (11 + len(args.at)))
     for r in runs:
         cps = ' | '.join(_checkpoint(r['checkpoints'][str(t)]) for t in args.at)
         print(f"| {r['robots']} | {r['seed']} | {r['sim_s']:.0f} ({r['real_s']:.0f}, {r['speedup']:g}) "
@@ -183,21 +200,25 @@ def report(runs: List[dict], args: argparse.Namespace) -> None:
               f"| {r['merged_end']}/{r['robots']} | {cps} | {_f(_times100(r['explored_share']))} % "
               f"| {_f(r['cpu_cores_avg'], '{:.2f}')} / {_f(r['cpu_cores_peak'], '{:.2f}')} "
               f"| {_f(r['cpu_s_per_sim_s'], '{:.3f}')} "
+              f"| {_f(r['explore_cores_avg'], '{:.2f}')} / {_f(r['sim_cores_avg'], '{:.2f}')} "
               f"| {_f(r['rotation_error_max_deg'], '{:.2f}')} / {_f(_times100(r['corner_error_max_m']))} |")
     print('\n(checkpoints: explored share and robots in the merged map "Nm"; "-": the run had ended or not begun)')
     print('\n| robots | runs | latency median (all robots) | latency max | robots not merged at the end '
-          '| map_merge cores avg | CPU s per sim s |')
-    print('|---|---|---|---|---|---|---|')
+          '| map_merge cores avg | CPU s per sim s | explorers / simulator cores avg |')
+    print('|---|---|---|---|---|---|---|---|')
     for n in sorted({r['robots'] for r in runs}):
         group = [r for r in runs if r['robots'] == n]
         lat = [v for r in group for v in r['latencies']]
         late = [v for r in group for v in r['late']]
         cores = [r['cpu_cores_avg'] for r in group if r['cpu_cores_avg'] is not None]
         per_sim = [r['cpu_s_per_sim_s'] for r in group if r['cpu_s_per_sim_s'] is not None]
+        others = ' / '.join(_f(statistics.mean(v) if v else None, '{:.2f}') for v in (
+            [r['explore_cores_avg'] for r in group if r['explore_cores_avg'] is not None],
+            [r['sim_cores_avg'] for r in group if r['sim_cores_avg'] is not None]))
         print(f"| {n} | {len(group)} | {_f(statistics.median(lat) if lat else None)} | {_latency_max(lat, late)} "
               f"| {sum(r['robots'] - r['merged_end'] for r in group)} of {n * len(group)} "
               f"| {_f(statistics.mean(cores) if cores else None, '{:.2f}')} "
-              f"| {_f(statistics.mean(per_sim) if per_sim else None, '{:.3f}')} |")
+              f"| {_f(statistics.mean(per_sim) if per_sim else None, '{:.3f}')} | {others} |")
 
 
 def main(argv: Optional[List[str]] = None) -> None:
@@ -233,7 +254,8 @@ def main(argv: Optional[List[str]] = None) -> None:
             runs.append(r)
             print(f"  {r['end']}; sim {r['sim_s']:.0f} s, latency median {_f(r['latency_median'])} max "
                   f"{_latency_max(r['latencies'], r['late'])}, merged {r['merged_end']}/{n}, map_merge "
-                  f"{_f(r['cpu_cores_avg'], '{:.2f}')} cores", flush=True)
+                  f"{_f(r['cpu_cores_avg'], '{:.2f}')} cores, explorers {_f(r['explore_cores_avg'], '{:.2f}')}, "
+                  f"simulator {_f(r['sim_cores_avg'], '{:.2f}')}", flush=True)
     if not runs:
         sys.exit('bench_fleet: no run produced a summary')
     report(runs, args)
