@@ -85,14 +85,22 @@ rm -f "$out/summary.txt" "$out/summary.json"
 echo "demo: $robots robots, world ${world:-generated (seed $world_seed)}, seed $seed, speed-up $speedup," \
      "coordination $coordinate; log in $out/roslaunch.log"
 set +e
-rec_pid=""
+rec_pid="" core_pid=""
 if [ -n "$record" ]; then
   mkdir -p "$(dirname "$record")"
-  # once the master answers; the maps are latched, so nothing published before is lost
-  ( for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
-    exec rosbag record -q -O "$record" -e '/robot_[0-9]+/map(_updates)?|/map_merge/map_merge/status' \
-      >/dev/null 2>&1 ) &
+  # The recorder subscribes before the fleet starts, so that the bag holds every map and update from the first
+  # (started with the launch, it connected after 1-2 s of real time, 5-10 sim s; until then only the latched
+  # latest map of each robot reached it). Its own master (with rosout) first; roslaunch then uses that one.
+  topics=(/map_merge/map_merge/status)
+  for n in $(seq "$robots"); do topics+=("/robot_$n/map" "/robot_$n/map_updates"); done
+  roscore -p "$port" >"$out/roscore.log" 2>&1 &
+  core_pid=$!
+  for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.1; done
+  rosparam set /use_sim_time true   # as the launch sets it: the bag's times are sim times
+  rosbag record -q -O "$record" "${topics[@]}" >/dev/null 2>&1 &
   rec_pid=$!
+  for _ in $(seq 100); do rostopic info "/robot_$robots/map_updates" 2>/dev/null | grep -q '^ \* /record' && break
+    sleep 0.1; done
 fi
 # Hard stop a little after the supervisor's own real-time limit, whatever happens.
 timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall') + 40))")" \
@@ -103,6 +111,7 @@ timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall'
   | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'
 if [ -n "$rec_pid" ]; then
   pkill -INT -P "$rec_pid" 2>/dev/null; kill -INT "$rec_pid" 2>/dev/null; wait "$rec_pid" 2>/dev/null
+  kill -INT "$core_pid" 2>/dev/null; wait "$core_pid" 2>/dev/null
   echo "demo: maps recorded in $record"
 fi
 set -e
