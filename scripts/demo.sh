@@ -86,6 +86,13 @@ echo "demo: $robots robots, world ${world:-generated (seed $world_seed)}, seed $
      "coordination $coordinate; log in $out/roslaunch.log"
 set +e
 rec_pid="" core_pid=""
+stop_recorder() {   # also on Ctrl-C or an error: no recorder or master of ours is left running
+  [ -n "$rec_pid" ] || return 0
+  pkill -INT -P "$rec_pid" 2>/dev/null; kill -INT "$rec_pid" 2>/dev/null; wait "$rec_pid" 2>/dev/null
+  kill -INT "$core_pid" 2>/dev/null; wait "$core_pid" 2>/dev/null
+  rec_pid=""
+}
+trap stop_recorder EXIT
 if [ -n "$record" ]; then
   mkdir -p "$(dirname "$record")"
   # The recorder subscribes before the fleet starts, so that the bag holds every map and update from the first
@@ -93,11 +100,13 @@ if [ -n "$record" ]; then
   # latest map of each robot reached it). Its own master (with rosout) first; roslaunch then uses that one.
   topics=(/map_merge/map_merge/status)
   for n in $(seq "$robots"); do topics+=("/robot_$n/map" "/robot_$n/map_updates"); done
-  roscore -p "$port" >"$out/roscore.log" 2>&1 &
+  # in sessions of their own: a Ctrl-C stops the launch first (its nodes unregister from this master), then the
+  # EXIT trap stops these two
+  setsid roscore -p "$port" >"$out/roscore.log" 2>&1 &
   core_pid=$!
   for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.1; done
   rosparam set /use_sim_time true   # as the launch sets it: the bag's times are sim times
-  rosbag record -q -O "$record" "${topics[@]}" >/dev/null 2>&1 &
+  setsid rosbag record -q -O "$record" "${topics[@]}" >/dev/null 2>&1 &
   rec_pid=$!
   for _ in $(seq 100); do rostopic info "/robot_$robots/map_updates" 2>/dev/null | grep -q '^ \* /record' && break
     sleep 0.1; done
@@ -110,8 +119,7 @@ timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall'
   | tee "$out/roslaunch.log" | grep --line-buffered -E '^\[demo\]|^demo:|has died|FATAL|ERROR|Traceback' \
   | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'
 if [ -n "$rec_pid" ]; then
-  pkill -INT -P "$rec_pid" 2>/dev/null; kill -INT "$rec_pid" 2>/dev/null; wait "$rec_pid" 2>/dev/null
-  kill -INT "$core_pid" 2>/dev/null; wait "$core_pid" 2>/dev/null
+  stop_recorder
   echo "demo: maps recorded in $record"
 fi
 set -e
