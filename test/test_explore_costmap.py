@@ -1,4 +1,6 @@
 """explore costmap client: value translation, full maps, partial updates, geometry, probabilistic maps."""
+import io
+
 import numpy as np
 import pytest
 
@@ -192,7 +194,6 @@ def test_probability_map_finds_frontiers_that_the_original_misses():
 def test_maps_received_as_numpy_msg_give_the_same_costmap_as_plain_ones():
     """The node subscribes with numpy_msg (cells as read-only int8 arrays, not tuples of ints): the costmap made
     from the same wire bytes must not differ, for full maps and for updates."""
-    io = pytest.importorskip('io')
     numpy_msg = pytest.importorskip('rospy.numpy_msg').numpy_msg
     OccupancyGrid = pytest.importorskip('nav_msgs.msg').OccupancyGrid
     OccupancyGridUpdate = pytest.importorskip('map_msgs.msg').OccupancyGridUpdate
