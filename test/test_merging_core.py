@@ -462,6 +462,38 @@ def test_an_early_small_map_is_found_on_the_union_by_the_search(repo_root):
     assert rot < 1.0 and cells < 3.0, (rot, cells)
 
 
+def test_opposite_angles_correlated_from_one_turned_image_score_as_if_each_was_turned(repo_root):
+    """The search correlates an angle half a turn from another by mirroring that one's turned image (two DFTs less):
+    on a robot's map and a union from a live demo, every angle of the sweep gets the same best score, at the same
+    placement, as when each angle is turned and correlated on its own."""
+    from multirobot_map_merge.estimation import search
+    from multirobot_map_merge.estimation.features import prepare
+    folder = repo_root / 'test' / 'data' / 'demo_early_small_map'
+    robot, union = (prepare(load_map(str(folder / f'{n}.yaml')), 0.05, None) for n in ('robot_1', 'union'))
+    ci, cj = search.coarse(robot, 4), search.coarse(union, 4)
+    diag = int(math.ceil(math.hypot(*ci.walls.shape)))
+    shape = search._fft_shape(diag + cj.walls.shape[0], diag + cj.walls.shape[1])
+    walls, open_ = search._spectrum(cj.walls, shape), search._spectrum(cj.open, shape)
+    against = (walls - 3.0 * open_, 0.3 * open_ - 3.0 * walls)
+    angles = search.rotation_candidates(ci, cj, 3.0)
+    units = search.opposite_pairs(angles)
+    assert len(units) < 0.6 * len(angles)   # most angles are paired
+    assert sorted(a for unit in units for a in unit if a is not None) == sorted(angles)
+
+    def best(units, keep):
+        found = search._best_peaks(ci, against, shape, diag, units, 2, keep, None)
+        return sorted(found, key=lambda st: -st[0])[:keep]
+
+    # every angle is correlated (its best peak kept when nothing prunes it) ...
+    assert {round(a, 9) for _, _, a in best(units, 10 ** 6)} == {round(a, 9) for a in angles}
+    # ... and the search's candidates are the same placements with the same scores (nearest-neighbour rounding at
+    # ties may move a pixel of the mirrored image, hence no equality angle by angle)
+    paired, alone = best(units, 8), best([(a, None) for a in angles], 8)
+    assert len(alone) == 8
+    for (score_p, t_p, angle_p), (score_a, t_a, angle_a) in zip(paired, alone):
+        assert abs(score_p - score_a) < 1e-3 * abs(score_a) and np.allclose(t_p, t_a) and angle_p == angle_a
+
+
 def test_the_candidate_screen_counts_the_walls_on_a_small_common_area_of_a_large_map():
     """quick_agreement on a large map (walls every 1.5 m over 20 x 20 m) placed onto a 2.5 x 2.5 m crop of its own
     corner: of 600 walls sampled from all of them, too few land on the crop to count; sampled among those that do,
