@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -177,13 +177,22 @@ def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: f
 def opposite_pairs(angles: Sequence[float]) -> List[Tuple[float, Optional[float]]]:
     """The angles as (angle, the angle half a turn from it or None): each pair is correlated from one turned image
     (see _best_peaks), each angle once, in the order of the first of each pair."""
-    left = list(angles)
+    def key(angle: float) -> int:   # microradians in [0, 2 pi): an angle missed at a rounding edge goes alone
+        return round(math.fmod(angle, 2 * math.pi) % (2 * math.pi) * 1e6)
+
+    at: Dict[int, List[int]] = {}
+    for n, angle in enumerate(angles):
+        at.setdefault(key(angle), []).append(n)
+    taken = [False] * len(angles)
     units: List[Tuple[float, Optional[float]]] = []
-    while left:
-        angle = left.pop(0)
-        opposite = next((n for n, other in enumerate(left)
-                         if abs(math.remainder(other - angle - math.pi, 2 * math.pi)) < 1e-9), None)
-        units.append((angle, None if opposite is None else left.pop(opposite)))
+    for n, angle in enumerate(angles):
+        if taken[n]:
+            continue
+        taken[n] = True
+        partner = next((m for m in at.get(key(angle + math.pi), ()) if not taken[m]), None)
+        if partner is not None:
+            taken[partner] = True
+        units.append((angle, None if partner is None else angles[partner]))
     return units
 
 
