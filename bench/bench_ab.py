@@ -23,6 +23,8 @@ import tempfile
 from pathlib import Path
 from typing import Dict, List
 
+import machine  # bench/, beside this script
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MAPS = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
 
@@ -92,7 +94,8 @@ def main(argv: List[str] = None) -> int:
         finally:
             subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
     print(f'\none estimation of {len(sorted(maps.glob("map_*.yaml")))} maps ({maps.name}), {args.threads} threads, '
-          f'{args.rounds} rounds alternating; base = {args.base} ({base_rev.stdout.strip()}), work = working tree\n')
+          f'{args.rounds} rounds alternating; base = {args.base} ({base_rev.stdout.strip()}), work = working tree; '
+          f'{machine.describe()}\n')
     print('| side | wall median (s) | wall lowest (s) | CPU median (s) | placed | walls (s) |')
     print('|---|---|---|---|---|---|')
     print(summary('base', runs['base']))

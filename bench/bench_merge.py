@@ -26,6 +26,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+import machine  # noqa: E402  (bench/, beside this script)
 
 CANVAS = 2048
 # row name -> (scenario folder, label); "canvas8" pastes group8_cave into 2048x2048 canvases,
@@ -297,10 +298,9 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
     truth = json.loads((folder / 'truth.json').read_text())
     row = spawn_row(name, cache, repeat)
     scored = merge_and_score(folder, cache / f'{name}_result')
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
     made = 'cached' if gen_s is None else f'generated in {gen_s:.0f} s'
-    lines = [f'generated-scenario benchmark ({folder}, {made}): {repeat} repeat(s), median; {cpus} CPUs, load '
-             f'average {os.getloadavg()[0]:.2f}', '']
+    lines = [f'generated-scenario benchmark ({folder}, {made}): {repeat} repeat(s), median; {machine.describe()}',
+             '']
     if row is not None:
         t = row['cold']
         lines += [*table([row]), '',
@@ -396,9 +396,8 @@ def main() -> int:
         print(f'bench_merge: scenarios missing in {data_dir}: {", ".join(sorted(set(missing)))}', file=sys.stderr)
         return 2
     results = [r for r in (spawn_row(n, data_dir, repeat) for n in names) if r is not None]
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count()
-    lines = [f'merging core benchmark: {repeat} repeat(s), median; {cpus} CPUs, load average '
-             f'{os.getloadavg()[0]:.2f} (timings are inflated on a busy machine)', '', *table(results), '',
+    lines = [f'merging core benchmark: {repeat} repeat(s), median; {machine.describe()} (timings are inflated on a '
+             f'busy machine)', '', *table(results), '',
              *targets(results)]
     print('\n'.join(lines))
     if args.markdown:
