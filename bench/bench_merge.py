@@ -325,7 +325,7 @@ def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
     grids, truth = load_scenario(data_dir / ROWS['large30'][0])
     orders = [reveal_order(g) for g in grids]
     lines = [f'{ROWS["large30"][0]} revealed tile by tile, estimated afresh (merge_maps settings) and scored; '
-             f'load average {os.getloadavg()[0]:.2f}', '',
+             f'{machine.describe()}', '',
              '| share revealed | known m2 (median map) | placed | placed wrong | estimate (s) | wrong: file, degrees, '
              'cells |', '|---|---|---|---|---|---|']
     for share in shares:
@@ -383,7 +383,7 @@ def main() -> int:
         return 0
     if args.curve:
         lines = [f'estimation cost curve (first n maps of {ROWS["large30"][0]}), {max(1, args.repeat)} repeat(s), '
-                 f'median; load average {os.getloadavg()[0]:.2f}', '',
+                 f'median; {machine.describe()}', '',
                  *curve_table(run_curve(data_dir, max(1, args.repeat)))]
         print('\n'.join(lines))
         if args.markdown:

@@ -178,7 +178,7 @@ def opposite_pairs(angles: Sequence[float]) -> List[Tuple[float, Optional[float]
     """The angles as (angle, the angle half a turn from it or None): each pair is correlated from one turned image
     (see _best_peaks), each angle once, in the order of the first of each pair."""
     def key(angle: float) -> int:   # microradians in [0, 2 pi): an angle missed at a rounding edge goes alone
-        return round(math.fmod(angle, 2 * math.pi) % (2 * math.pi) * 1e6)
+        return round(angle % (2 * math.pi) * 1e6)
 
     at: Dict[int, List[int]] = {}
     for n, angle in enumerate(angles):
