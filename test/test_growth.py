@@ -285,53 +285,6 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
     assert runs == [False] and np.allclose(again.transforms[2], fresh.transforms[2])
 
 
-def test_kept_placements_give_way_to_an_estimate_afresh_once_the_maps_have_grown(repo_root, monkeypatch):
-    """While the maps grow, every map placed: once they know FRESH_GROWTH times the cells they knew when the last
-    map joined, the kept placements are compared with an estimate afresh (tracking refines each placement alone, so
-    a pair placed a degree off stays off while its neighbours agree with it); it replaces them when it moves one by
-    more than the noise. Not again until the maps have grown that much more."""
-    from multirobot_map_merge.estimation import estimator, tracking
-    from multirobot_map_merge.estimation.memory import EstimationMemory
-    from multirobot_map_merge.estimation.pair import PairMatch
-    from multirobot_map_merge.grid import Grid
-    grids, poses = _sample(repo_root, 'three_robots')
-    # the same maps earlier: their bottom halves not known yet
-    early = []
-    for g in grids:
-        data = g.data.copy()
-        data[: g.height // 2] = -1
-        early.append(Grid(data, g.resolution, g.origin, g.frame_id))
-    known = [int((g.data >= 0).sum()) for g in grids]
-    assert sum(known) >= estimator.FRESH_GROWTH * sum(int((g.data >= 0).sum()) for g in early)
-    s, memory, names = EstimationSettings(), EstimationMemory(), ['a', 'b', 'c']
-    fresh = estimate(grids, s, preferred_reference=0)
-    runs = []
-    real = estimator._estimate
-    monkeypatch.setattr(estimator, '_estimate', lambda *args: runs.append(args[4] is None) or real(*args))
-    # checks that confirm whatever they are given, as neighbour checks can confirm a pair that is turned a little
-    monkeypatch.setattr(tracking, 'recheck', lambda k, grids, prepared, placed, *rest:
-                        tracking.Check(k, placed[k], PairMatch(k, 0, accepted=True)))
-    previous = list(fresh.transforms)
-    previous[2] = tf.rigid(0.0, 0.0, math.radians(1.0)) @ previous[2]   # map c kept 1 degree off
-    kept = estimate(early, s, preferred_reference=0, previous=previous, memory=memory, names=names)
-    assert runs == [False] and kept.tracked == 2 and np.allclose(kept.transforms[2], previous[2])
-    # the maps have grown: the estimate afresh runs and replaces the kept placements
-    runs.clear()
-    grown = estimate(grids, s, preferred_reference=0, previous=kept.transforms, memory=memory, names=names)
-    assert runs == [False, True] and grown.reference == 0
-    for k in range(3):
-        assert np.allclose(grown.transforms[k], fresh.transforms[k], atol=1e-9), k
-    rot, dist = _error(grown.transforms[2], poses, 2, 0)
-    assert rot < 0.5 and dist < 0.1
-    # grown by a little more: not again
-    runs.clear()
-    more = [Grid(g.data.copy(), g.resolution, g.origin, g.frame_id) for g in grids]
-    row, col = np.argwhere(more[1].data < 0)[0]
-    more[1].data[row, col] = 0   # one cell more known: the maps changed, by far less than FRESH_GROWTH
-    again = estimate(more, s, preferred_reference=0, previous=grown.transforms, memory=memory, names=names)
-    assert runs == [False] and np.allclose(again.transforms[2], fresh.transforms[2])
-
-
 def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
     """The six maps of a live demo at 15 sim s (seed 1): robots 4 and 6 pair by descriptors and, the largest group
     then, search the others in vain; robots 1-3 grow next around the reference, robot 3, and overlap 4 and 6 by

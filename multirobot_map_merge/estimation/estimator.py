@@ -40,13 +40,6 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 # by more (or places more maps); below, the two differ by the usual noise (up to 4.7 cm in a replayed demo run) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
-# while the maps grow, every map placed, the kept placements are compared with an estimate afresh too, each time
-# the maps know this many times the cells they knew when a map last joined (or at the last estimate afresh):
-# tracking refines each placement alone, against the maps near it, so a map or a pair placed a degree off on small
-# early overlaps stays there while its neighbours agree with it (replayed, 3 of 16 recorded demo runs kept a robot
-# 0.8-1.0 degrees and 20-40 cm off for 70-130 sim s; with this, for 9-16 estimations, at 0-3 estimates afresh of
-# 0.4-0.8 s per run)
-FRESH_GROWTH = 1.15
 
 
 @dataclass
@@ -164,10 +157,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     far are compared once with an estimation afresh from those final maps: tracking checks each placement against the
     maps near it, so small turns between neighbours can add up along a chain of robots (a live demo ended with one
     robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
-    robot within 0.33 degrees). While the maps grow, they are compared so too each time the maps have grown by
-    FRESH_GROWTH since a map last joined (or since the last estimate afresh), once every map is placed. The fresh
-    estimate replaces the kept one when it places every grid that one did, in the same frame, and moves one of them
-    by more than FRESH_MOVE_M or places more."""
+    robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
+    in the same frame, and moves one of them by more than FRESH_MOVE_M or places more."""
     # each map's content, once: tracking's verdicts remember the contents of the maps they saw
     contents = [content_key(g) if g is not None else None for g in grids] if previous is not None else None
     inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
@@ -175,19 +166,15 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     # afresh only in the estimation after the one that found the maps settled: that one re-checks every placement
     # on the final maps (tracking's verdicts), and both in one estimation took the node's longest one past 5 s
     # (30 robots: 5.4 s); this one's tracking finds every verdict standing
-    final = settled and memory.settled_inputs == inputs and memory.fresh_inputs != inputs
-    known = _known_cells(grids) if inputs is not None else 0
+    due = settled and memory.settled_inputs == inputs and memory.fresh_inputs != inputs
     result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents)
     if inputs is not None:
         for n, c in inputs:
             memory.latest.put(n, c)
         memory.settled_inputs = inputs if settled else None
-    grown = inputs is not None and not settled and _grown_since_placed(grids, previous, result, known, memory)
-    if not (final or grown) or not result.tracked:
+    if not due or not result.tracked:
         return result
-    if final:
-        memory.fresh_inputs = inputs
-    memory.fresh_known = known
+    memory.fresh_inputs = inputs
     fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None)
     kept = {k for k, t in enumerate(result.transforms) if t is not None}
     if fresh.reference != result.reference or not kept <= {k for k, t in enumerate(fresh.transforms)
@@ -195,32 +182,13 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
         return result
     moved = max(tf.difference(fresh.transforms[k], result.transforms[k], _corners(grids[k]))[1] for k in kept)
     placed = sum(t is not None for t in fresh.transforms)
-    which = 'the final maps' if final else 'the maps, grown by %.0f %%,' % (100 * (FRESH_GROWTH - 1))
     if placed == len(kept) and moved <= FRESH_MOVE_M:
-        log.debug('%s estimated afresh: the same placements (moved by up to %.3f m)', which, moved)
+        log.debug('the final maps estimated afresh: the same placements (moved by up to %.3f m)', moved)
         return result   # the same placements up to the usual noise: the verdicts on them stand
-    log.info('%s estimated afresh: %d grids placed (%d before), moved by up to %.2f m at their corners',
-             which, placed, len(kept), moved)
+    log.info('the final maps estimated afresh: %d grids placed (%d before), moved by up to %.2f m at their corners',
+             placed, len(kept), moved)
     fresh.seconds += result.seconds
     return fresh
-
-
-def _known_cells(grids: Sequence[Optional[Grid]]) -> int:
-    return sum(int(np.count_nonzero(g.data >= 0)) for g in grids if g is not None)
-
-
-def _grown_since_placed(grids: Sequence[Optional[Grid]], previous: Optional[Sequence[Optional[np.ndarray]]],
-                        result: Estimate, known: int, memory: EstimationMemory) -> bool:
-    """Whether the maps (`known` cells) have grown by FRESH_GROWTH since the last estimate afresh or the last grid
-    that joined, with every map placed now (an estimation afresh costs as much as the first one: a robot waiting to
-    join would wait that much longer). Placements made on these maps reset the count."""
-    joined = not result.tracked or previous is None or any(
-        t is not None and (k >= len(previous) or previous[k] is None) for k, t in enumerate(result.transforms))
-    if joined or not memory.fresh_known:   # (a new memory: counted from here)
-        memory.fresh_known = known
-        return False
-    return known >= FRESH_GROWTH * memory.fresh_known and all(
-        t is not None for g, t in zip(grids, result.transforms) if g is not None and not g.is_empty())
 
 
 def _corners(grid: Grid) -> np.ndarray:
