@@ -2,6 +2,7 @@
 demo's summary.json written from their ground truth): the node's cadence (--pace) and the earliest time the rules
 could place each robot (--evidence)."""
 import json
+import math
 import re
 import subprocess
 import sys
@@ -63,3 +64,41 @@ def test_pace_counts_a_placement_when_the_estimation_ends(repo_root, tmp_path):
     # a placement counts from the end of the estimation that made it, not from its start
     assert all(any(abs(float(v['placed']) - b) < 0.006 for _, b in spans) for v in rows.values())
     assert max(float(v['placed']) for v in rows.values()) > max(a for a, _ in spans if a < T0 + 2.5)
+
+
+def test_status_errors_count_the_time_a_published_placement_is_off(repo_root, tmp_path):
+    """scripts/status_errors.py scores every ~status of a recorded run against the start poses: here the truth at
+    T0 + 3 and T0 + 4, robot_2 turned by 2 degrees at T0 + 5 and the truth again at T0 + 9, so it is off for 4 s of
+    the 6 s with robots placed."""
+    import genpy
+    import rosbag
+    from geometry_msgs.msg import Quaternion, Vector3
+    from multirobot_map_merge.msg import MergeStatus, RobotMergeStatus
+    from test_bag_input import write_bag
+    truth = json.loads((repo_root / 'data' / 'samples' / 'chain3' / 'truth.json').read_text())
+    poses = [m['pose'] for m in truth['maps']]
+
+    def status(dt, turn_deg):
+        msg = MergeStatus()
+        msg.header.stamp = genpy.Time.from_sec(T0 + dt)
+        for k, (x, y, yaw) in enumerate(poses):
+            r = RobotMergeStatus(robot_namespace=f'/robot_{k}', included=True)
+            yaw += math.radians(turn_deg) if k == 2 else 0.0
+            r.transform.translation = Vector3(x, y, 0.0)
+            r.transform.rotation = Quaternion(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+            msg.robots.append(r)
+        return msg
+
+    bag = tmp_path / 'run.bag'
+    sample_bag(repo_root, tmp_path)   # chain3.bag: the robots' maps
+    entries = [(t.to_sec() - T0, topic, msg) for topic, msg, t in rosbag.Bag(str(tmp_path / 'chain3.bag'))]
+    entries += [(3, '/map_merge/status', status(3, 0.0)), (4, '/map_merge/status', status(4, 0.0)),
+                (5, '/map_merge/status', status(5, 2.0)), (9, '/map_merge/status', status(9, 0.0))]
+    write_bag(bag, sorted(entries, key=lambda e: e[0]))
+    proc = subprocess.run([sys.executable, str(repo_root / 'scripts' / 'status_errors.py'), str(bag),
+                           '--summary', summary_of(repo_root, tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    off = re.findall(r'^t\s+([\d.]+)\s+worst (\S+): ([\d.]+) deg', proc.stdout, re.M)
+    assert [(float(t), robot) for t, robot, _ in off] == [(T0 + 5, '/robot_2')] and abs(float(off[0][2]) - 2) < 0.01
+    assert re.search(r'^6\.0 sim s with two robots or more placed: 4\.0 s \(66\.7 %\)', proc.stdout, re.M), \
+        proc.stdout

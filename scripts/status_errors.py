@@ -1,0 +1,96 @@
+#!/usr/bin/env python3
+"""How far off the map_merge node's published placements were while a recorded run went on (a diagnostic).
+
+    scripts/env.sh python scripts/status_errors.py RUN.bag --summary SUMMARY.json [--degrees D] [--cm C]
+
+The bag holds the robots' maps and map_merge's ~status, as `scripts/demo.sh --record FILE.bag` writes it; the demo's
+summary.json gives the robots' true start poses. Every ~status with two robots or more placed is scored as the
+demo's summary scores the final placements (explore.coverage.placement_errors: relative to the first placed robot by
+name, the rotation and the largest displacement of a robot map's corners, here of its final map). Prints the
+statuses whose worst robot is off by more than --degrees or --cm (defaults 0.75 and 15), then the sim time covered
+(from the first such status to the last), the share of it spent off, and the worst seen. The demo's summary scores
+the end only: a pair of robots that joined the others a degree off can stay so for most of a run (tracking refines
+each robot against the maps near it, and each of the pair holds the other).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from typing import Dict, List, Tuple
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
+
+from explore.coverage import placement_errors  # noqa: E402
+from multirobot_map_merge.grid import GridError  # noqa: E402
+from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
+from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
+
+Pose = Tuple[float, float, float]
+
+
+def status_poses(msg) -> Dict[str, Pose]:
+    """robot namespace -> (x, y, yaw) of its map frame in the merge, for the robots a MergeStatus includes."""
+    out = {}
+    for r in msg.robots:
+        if r.included:
+            q = r.transform.rotation
+            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            out['/' + r.robot_namespace.strip('/')] = (r.transform.translation.x, r.transform.translation.y, yaw)
+    return out
+
+
+def main(argv: List[str] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('bag')
+    ap.add_argument('--summary', required=True, help="the demo's summary.json (start poses)")
+    ap.add_argument('--degrees', type=float, default=0.75, help='rotation error counted as off (default 0.75)')
+    ap.add_argument('--cm', type=float, default=15.0, help='corner error counted as off, cm (default 15)')
+    args = ap.parse_args(argv)
+    try:
+        import rosbag
+        messages = list(rosbag.Bag(args.bag).read_messages())
+        starts = {'/' + n.strip('/'): tuple(p)
+                  for n, p in json.load(open(args.summary)).get('start_poses', {}).items()}
+    except Exception as e:   # a missing or broken bag or summary
+        print(f'status_errors: cannot read {args.bag} or {args.summary}: {e}', file=sys.stderr)
+        return 2
+    maps: Dict[str, RobotMap] = {}
+    statuses: List[Tuple[float, Dict[str, Pose]]] = []
+    for topic, msg, _ in messages:
+        if topic.endswith('/status'):
+            statuses.append((msg.header.stamp.to_sec(), status_poses(msg)))
+            continue
+        robot_map = maps.setdefault(topic.rsplit('/', 1)[0], RobotMap())
+        try:
+            robot_map.apply_update(update_from_msg(msg)) if topic.endswith('_updates') \
+                else robot_map.set_full(grid_from_msg(msg))
+        except GridError:
+            continue
+    grids = {name: m.snapshot() for name, m in maps.items()}
+    scored = [(t, placement_errors({n: poses[n] for n in sorted(poses)}, starts, grids))
+              for t, poses in statuses if len(poses) >= 2]
+    scored = [(t, max(rows, key=lambda r: r['corner_error_m'])) for t, rows in scored if len(rows) >= 2]
+    if not scored:
+        print('no status with two robots placed')
+        return 0
+    end = statuses[-1][0]
+    off = 0.0
+    for (t, worst), later in zip(scored, [t for t, _ in scored[1:]] + [end]):
+        if worst['rotation_error_deg'] > args.degrees or 100.0 * worst['corner_error_m'] > args.cm:
+            off += later - t
+            print(f"t {t:7.1f}  worst {worst['robot']}: {worst['rotation_error_deg']:.2f} deg, "
+                  f"{100 * worst['corner_error_m']:.1f} cm")
+    span = end - scored[0][0]
+    worst_cm = max(scored, key=lambda s: s[1]['corner_error_m'])[1]
+    worst_deg = max(scored, key=lambda s: s[1]['rotation_error_deg'])[1]
+    print(f'{span:.1f} sim s with two robots or more placed: {off:.1f} s ({100 * off / span if span else 0.0:.1f} %) '
+          f'off by more than {args.degrees:g} deg or {args.cm:g} cm; worst {100 * worst_cm["corner_error_m"]:.1f} cm '
+          f'({worst_cm["robot"]}), {worst_deg["rotation_error_deg"]:.2f} deg ({worst_deg["robot"]})')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
