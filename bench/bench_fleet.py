@@ -152,6 +152,7 @@ def run_figures(summary: dict, samples: Samples, args: argparse.Namespace) -> di
         p = at_time(progress, t)
         checkpoints[str(t)] = None if p is None else {'explored_share': p['explored_share'], 'merged': p['merged']}
     cpu = cpu_figures(samples['map_merge'], args.window)
+    timeline = summary.get('placement_timeline') or {}
     return dict(
         robots=summary['robots'], end=summary['end'], sim_s=end, real_s=summary['real_time_s'],
         speedup=summary['speedup'], explored_share=summary['explored_share'],
@@ -161,6 +162,7 @@ def run_figures(summary: dict, samples: Samples, args: argparse.Namespace) -> di
         merged_end=len(placed), checkpoints=checkpoints,
         rotation_error_max_deg=max((r['rotation_error_deg'] for r in placed), default=None),
         corner_error_max_m=max((r['corner_error_m'] for r in placed), default=None),
+        off_s=timeline.get('off_s'), off_span_s=timeline.get('span_s'),
         cpu_s_per_sim_s=cpu['cpu_s'] / end if cpu['cpu_s'] is not None and end > 0 else None, **cpu,
         explore_cores_avg=cpu_figures(samples['explore'], args.window)['cpu_cores_avg'],
         sim_cores_avg=cpu_figures(samples['fleet_sim'], args.window)['cpu_cores_avg'])
@@ -191,8 +193,8 @@ def report(runs: List[dict], args: argparse.Namespace) -> None:
     at = ' | '.join(f'at {t:g} s' for t in args.at)
     print(f'\n| robots | seed | sim s (real s, x) | latency median | latency max | merged | {at} | end explored '
           f'| map_merge cores avg / peak {args.window:g} s | CPU s per sim s | explorers / simulator cores avg '
-          f'| max error deg / cm |')
-    print('|' + '---|' * (11 + len(args.at)))
+          f'| max error deg / cm | merge off while running (s of s) |')
+    print('|' + '---|' * (12 + len(args.at)))
     for r in runs:
         cps = ' | '.join(_checkpoint(r['checkpoints'][str(t)]) for t in args.at)
         print(f"| {r['robots']} | {r['seed']} | {r['sim_s']:.0f} ({r['real_s']:.0f}, {r['speedup']:g}) "
@@ -201,8 +203,10 @@ def report(runs: List[dict], args: argparse.Namespace) -> None:
               f"| {_f(r['cpu_cores_avg'], '{:.2f}')} / {_f(r['cpu_cores_peak'], '{:.2f}')} "
               f"| {_f(r['cpu_s_per_sim_s'], '{:.3f}')} "
               f"| {_f(r['explore_cores_avg'], '{:.2f}')} / {_f(r['sim_cores_avg'], '{:.2f}')} "
-              f"| {_f(r['rotation_error_max_deg'], '{:.2f}')} / {_f(_times100(r['corner_error_max_m']))} |")
-    print('\n(checkpoints: explored share and robots in the merged map "Nm"; "-": the run had ended or not begun)')
+              f"| {_f(r['rotation_error_max_deg'], '{:.2f}')} / {_f(_times100(r['corner_error_max_m']))} "
+              f"| {_f(r['off_s'])} of {_f(r['off_span_s'], '{:.0f}')} |")
+    print('\n(checkpoints: explored share and robots in the merged map "Nm"; "-": the run had ended or not begun; '
+          'merge off: a robot more than 0.75 deg or 15 cm off, demo summary placement_timeline)')
     print('\n| robots | runs | latency median (all robots) | latency max | robots not merged at the end '
           '| map_merge cores avg | CPU s per sim s | explorers / simulator cores avg |')
     print('|---|---|---|---|---|---|---|---|')

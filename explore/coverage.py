@@ -144,3 +144,42 @@ def truth_from_estimate(estimated: Mapping[str, Pose], truth: Mapping[str, Pose]
     m = tf.rigid(*truth[names[0]]) @ tf.inverse(tf.rigid(*estimated[names[0]]))
     x, y, yaw, _ = tf.params(m)
     return x, y, yaw
+
+
+class PlacementTimeline:
+    """How long a live merge was off while it ran: ``add`` each published set of placements (its stamp, and its
+    placement_errors rows), ``summary`` at the end. A merge counts as off from a status whose worst robot is off by
+    more than ``degrees`` or ``metres`` until the next status; the span runs from the first status with two robots
+    placed to ``end``."""
+
+    def __init__(self, degrees: float = 0.75, metres: float = 0.15) -> None:
+        self.degrees, self.metres = degrees, metres
+        self.first: Optional[float] = None
+        self.off_s = 0.0
+        self._off_since: Optional[float] = None   # stamp of the last status, if it was off
+        self.worst_m: Tuple[float, str] = (0.0, '')
+        self.worst_deg: Tuple[float, str] = (0.0, '')
+        self.offs: List[Tuple[float, Dict[str, object]]] = []   # (stamp, worst row) of each status that was off
+
+    def add(self, stamp: float, rows: Sequence[Mapping[str, object]]) -> None:
+        if self._off_since is not None:
+            self.off_s += max(stamp - self._off_since, 0.0)
+            self._off_since = None
+        if len(rows) < 2:
+            return
+        if self.first is None:
+            self.first = stamp
+        worst = max(rows, key=lambda r: r['corner_error_m'])
+        self.worst_m = max(self.worst_m, (worst['corner_error_m'], worst['robot']))
+        turned = max(rows, key=lambda r: r['rotation_error_deg'])
+        self.worst_deg = max(self.worst_deg, (turned['rotation_error_deg'], turned['robot']))
+        if worst['corner_error_m'] > self.metres or turned['rotation_error_deg'] > self.degrees:
+            self._off_since = stamp
+            self.offs.append((stamp, worst if worst['corner_error_m'] > self.metres else turned))
+
+    def summary(self, end: float) -> Dict[str, object]:
+        off = self.off_s + (max(end - self._off_since, 0.0) if self._off_since is not None else 0.0)
+        return {'span_s': max(end - self.first, 0.0) if self.first is not None else 0.0, 'off_s': off,
+                'degrees': self.degrees, 'cm': 100.0 * self.metres, 'worst_cm': 100.0 * self.worst_m[0],
+                'worst_cm_robot': self.worst_m[1], 'worst_deg': self.worst_deg[0],
+                'worst_deg_robot': self.worst_deg[1]}

@@ -16,7 +16,9 @@ scripts/placement_report.py reports it offline. Finally the node shuts down, whi
 Merge latency (explore.merge_latency): every ~0.5 s the robots' maps are drawn at their true poses on a 0.1 m world
 raster; a robot is joinable once its map overlaps the union of the others' by the shared scorer's thresholds (4 m²
 and 5 % of its own known area), stamped with the newest map stamp used. map_merge's ~status (stamp, included)
-gives when each robot entered the merged map. summary.json's placement rows carry joinable_sim_s, merged_sim_s
+gives when each robot entered the merged map, and each status is scored as the end is (explore.coverage
+PlacementTimeline: placement_timeline in summary.json holds how long the merge was off by more than 0.75 degrees or
+15 cm while the run went on). summary.json's placement rows carry joinable_sim_s, merged_sim_s
 (start of the stretch in the merged map that lasts until the end) and latency_s; `progress` holds the progress
 lines (sim s, real s, explored share, robots merged and joinable) for the fleet benchmark (bench/bench_fleet.py).
 
@@ -38,7 +40,8 @@ from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Log
 from rospy.numpy_msg import numpy_msg
 
-from explore.coverage import KnownRaster, explored_share, placement_errors, reachable_mask, truth_from_estimate
+from explore.coverage import (KnownRaster, PlacementTimeline, explored_share, placement_errors, reachable_mask,
+                             truth_from_estimate)
 from explore.merge_latency import LatencyTracker, joinable_robots
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
@@ -86,6 +89,8 @@ class Supervisor:
         self.stopped: set = set()
         self.reach: Optional[np.ndarray] = None
         self.latency = LatencyTracker(self.names)
+        self.timeline = PlacementTimeline()   # main loop only, as the two below
+        self._scored: Optional[MergeStatus] = None   # the last status the timeline scored
         self._raster: Optional[KnownRaster] = None   # main loop only
         self.progress: List[dict] = []   # owned by the main loop
         rospy.Subscriber(rospy.get_param('~world_topic', '/fleet_sim/world_map'), GridMsg, self.on_world,
@@ -192,6 +197,17 @@ class Supervisor:
             rows.append(row)
         return rows, truth_from_estimate(estimated, starts)
 
+    def score_status(self) -> None:
+        """Scores a status not scored yet against the ground truth, with the robots' maps as they are now."""
+        with self.lock:
+            status, starts, maps = self.status, dict(self.starts), dict(self.maps)
+        if status is None or status is self._scored:
+            return
+        self._scored = status
+        estimated = {e.robot_namespace.strip('/'): _transform_pose(e.transform) for e in status.robots if e.included}
+        self.timeline.add(status.header.stamp.to_sec() or rospy.get_time(),
+                          placement_errors({n: estimated[n] for n in sorted(estimated)}, starts, maps))
+
     def merged_share(self, truth_from_merged: Optional[Pose]) -> Optional[float]:
         with self.lock:
             merged, world, reach = self.merged, self.world, self.reach
@@ -209,6 +225,7 @@ class Supervisor:
             time.sleep(0.5)
             wall, sim = time.monotonic() - wall0, rospy.get_time()
             joinable = self.update_joinable()
+            self.score_status()
             with self.lock:
                 stopped = len(self.stopped)
                 included = sum(1 for e in (self.status.robots if self.status else []) if e.included)
@@ -253,6 +270,8 @@ class Supervisor:
             time.sleep(0.2)
         share = self.explored()
         rows, truth_from_merged = self.placements()
+        self.score_status()
+        timeline = self.timeline.summary(rospy.get_time())
         self.update_joinable()
         with self.lock:
             latency = {r['robot']: r for r in self.latency.rows()}
@@ -280,7 +299,7 @@ class Supervisor:
                     [(p.robot_a.strip('/'), p.robot_b.strip('/'), p.confidence) for p in status.pairs if p.used])
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
-                   'placement': rows, 'files': files, 'progress': self.progress,
+                   'placement': rows, 'placement_timeline': timeline, 'files': files, 'progress': self.progress,
                    # ground-truth start poses (x, y, yaw in the world): with robots/*.yaml, a merge replays offline
                    'start_poses': {name: list(pose) for name, pose in sorted(self.starts.items())}}
         lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
@@ -295,6 +314,9 @@ class Supervisor:
                              + (' (reference)' if r['robot'] == r['reference'] else ''))
             else:
                 lines.append(f"demo:   {r['robot']}: not in the merged map")
+        lines.append(f"demo: while it ran, the merge was off by more than {timeline['degrees']:g} deg or "
+                     f"{timeline['cm']:g} cm for {timeline['off_s']:.1f} of {timeline['span_s']:.1f} sim s (worst "
+                     f"{timeline['worst_cm']:.1f} cm, {timeline['worst_deg']:.2f} deg)")
         lines.append('demo: merge latency in sim s (joinable: its map overlaps the others\' at true poses by '
                      '>= 4 m² and 5 %):')
         for r in rows:

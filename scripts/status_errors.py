@@ -23,7 +23,7 @@ from typing import Dict, List, Tuple
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
-from explore.coverage import placement_errors  # noqa: E402
+from explore.coverage import PlacementTimeline, placement_errors  # noqa: E402
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
 from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
@@ -70,25 +70,20 @@ def main(argv: List[str] = None) -> int:
         except GridError:
             continue
     grids = {name: m.snapshot() for name, m in maps.items()}
-    scored = [(t, placement_errors({n: poses[n] for n in sorted(poses)}, starts, grids))
-              for t, poses in statuses if len(poses) >= 2]
-    scored = [(t, max(rows, key=lambda r: r['corner_error_m'])) for t, rows in scored if len(rows) >= 2]
-    if not scored:
+    timeline = PlacementTimeline(args.degrees, args.cm / 100.0)
+    for t, poses in statuses:
+        timeline.add(t, placement_errors({n: poses[n] for n in sorted(poses)}, starts, grids))
+    if timeline.first is None:
         print('no status with two robots placed')
         return 0
-    end = statuses[-1][0]
-    off = 0.0
-    for (t, worst), later in zip(scored, [t for t, _ in scored[1:]] + [end]):
-        if worst['rotation_error_deg'] > args.degrees or 100.0 * worst['corner_error_m'] > args.cm:
-            off += later - t
-            print(f"t {t:7.1f}  worst {worst['robot']}: {worst['rotation_error_deg']:.2f} deg, "
-                  f"{100 * worst['corner_error_m']:.1f} cm")
-    span = end - scored[0][0]
-    worst_cm = max(scored, key=lambda s: s[1]['corner_error_m'])[1]
-    worst_deg = max(scored, key=lambda s: s[1]['rotation_error_deg'])[1]
-    print(f'{span:.1f} sim s with two robots or more placed: {off:.1f} s ({100 * off / span if span else 0.0:.1f} %) '
-          f'off by more than {args.degrees:g} deg or {args.cm:g} cm; worst {100 * worst_cm["corner_error_m"]:.1f} cm '
-          f'({worst_cm["robot"]}), {worst_deg["rotation_error_deg"]:.2f} deg ({worst_deg["robot"]})')
+    for t, worst in timeline.offs:
+        print(f"t {t:7.1f}  worst {worst['robot']}: {worst['rotation_error_deg']:.2f} deg, "
+              f"{100 * worst['corner_error_m']:.1f} cm")
+    s = timeline.summary(statuses[-1][0])
+    share = 100 * s['off_s'] / s['span_s'] if s['span_s'] else 0.0
+    print(f"{s['span_s']:.1f} sim s with two robots or more placed: {s['off_s']:.1f} s ({share:.1f} %) off by more "
+          f"than {args.degrees:g} deg or {args.cm:g} cm; worst {s['worst_cm']:.1f} cm ({s['worst_cm_robot']}), "
+          f"{s['worst_deg']:.2f} deg ({s['worst_deg_robot']})")
     return 0
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from explore.coverage import KnownRaster
+from explore.coverage import KnownRaster, PlacementTimeline
 from explore.merge_latency import (MIN_FRACTION, MIN_SHARED_M2, LatencyTracker, is_joinable, joinable_robots,
                                    union_overlaps)
 from multirobot_map_merge import transforms as tf
@@ -132,3 +132,23 @@ def test_latency_tracker():
     assert (rows['r1']['joinable_sim_s'], rows['r1']['merged_sim_s'], rows['r1']['latency_s']) == (20.0, 38.0, 18.0)
     assert (rows['r4']['merged_sim_s'], rows['r4']['latency_s']) == (None, None)
     assert LatencyTracker(['x']).reference() is None
+
+
+def test_placement_timeline_counts_the_time_from_a_status_off_to_the_next():
+    """A status whose worst robot is off by more than 0.75 degrees or 15 cm counts until the next status; the span
+    starts at the first status with two robots placed; the worst errors are kept with their robots."""
+
+    def rows(*errors):
+        return [{'robot': f'robot_{k}', 'rotation_error_deg': deg, 'corner_error_m': m}
+                for k, (deg, m) in enumerate(errors)]
+    timeline = PlacementTimeline()
+    timeline.add(8.0, rows((0.0, 0.0)))                   # one robot: nothing to score yet
+    timeline.add(10.0, rows((0.0, 0.0), (0.1, 0.05)))
+    timeline.add(12.0, rows((0.0, 0.0), (1.2, 0.10)))     # turned: off until 15
+    timeline.add(15.0, rows((0.0, 0.0), (0.2, 0.05)))
+    timeline.add(22.0, rows((0.0, 0.0), (0.1, 0.30), (0.5, 0.1)))   # shifted: off until the end
+    summary = timeline.summary(25.0)
+    assert summary['span_s'] == 15.0 and summary['off_s'] == 6.0
+    assert (summary['worst_cm'], summary['worst_cm_robot']) == (30.0, 'robot_1')
+    assert (summary['worst_deg'], summary['worst_deg_robot']) == (1.2, 'robot_1')
+    assert [t for t, _ in timeline.offs] == [12.0, 22.0]

@@ -116,6 +116,9 @@ class DemoCheck(unittest.TestCase):
         for r in rows:
             if r is not refs[0]:
                 self.assertAlmostEqual(r['latency_s'], r['merged_sim_s'] - r['joinable_sim_s'], places=6)
+        timeline = summary['placement_timeline']   # how long the merge was off while the run went on
+        self.assertGreater(timeline['span_s'], 0.0, timeline)
+        self.assertTrue(0.0 <= timeline['off_s'] <= timeline['span_s'] + 1e-6, timeline)
         times = [p['sim_s'] for p in summary['progress']]
         self.assertGreater(len(times), 2)
         self.assertEqual(times, sorted(times))
