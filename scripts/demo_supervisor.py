@@ -48,6 +48,7 @@ from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
 from multirobot_map_merge.overlay import save_named_overlay
 from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
+from multirobot_map_merge.ros.status import included_poses
 
 Pose = Tuple[float, float, float]
 # maps arrive with their cells as one numpy array (genpy's default is a tuple of ints: ~20x slower for 12 robots)
@@ -57,11 +58,6 @@ GridMsg = numpy_msg(OccupancyGrid)
 def _pose(msg: PoseStamped) -> Pose:
     q = msg.pose.orientation
     return msg.pose.position.x, msg.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
-
-
-def _transform_pose(t) -> Pose:
-    q = t.rotation
-    return t.translation.x, t.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 SETTLE_WAIT_S = 60.0   # wall s the end waits at most for the merged map and map_merge's last estimations
@@ -183,9 +179,7 @@ class Supervisor:
         world frame in the ground-truth world (None before any placement)."""
         with self.lock:
             status, starts, maps = self.status, dict(self.starts), dict(self.maps)
-        entries = {e.robot_namespace.strip('/'): e for e in (status.robots if status else [])}
-        estimated = {n: _transform_pose(entries[n].transform) for n in self.names
-                     if n in entries and entries[n].included}
+        estimated = self.estimated(status)
         errors = {r['robot']: r for r in placement_errors(estimated, starts, maps)}
         rows = []
         for n in self.names:
@@ -197,6 +191,12 @@ class Supervisor:
             rows.append(row)
         return rows, truth_from_estimate(estimated, starts)
 
+    def estimated(self, status: Optional[MergeStatus]) -> Dict[str, Pose]:
+        """The placements of a status, robot -> pose in map_merge's world, in the order of self.names (the first is
+        the one errors are relative to)."""
+        poses = included_poses(status)
+        return {n: poses[n] for n in self.names if n in poses}
+
     def score_status(self) -> None:
         """Scores a status not scored yet against the ground truth, with the robots' maps as they are now."""
         with self.lock:
@@ -204,9 +204,8 @@ class Supervisor:
         if status is None or status is self._scored:
             return
         self._scored = status
-        estimated = {e.robot_namespace.strip('/'): _transform_pose(e.transform) for e in status.robots if e.included}
         self.timeline.add(status.header.stamp.to_sec() or rospy.get_time(),
-                          placement_errors({n: estimated[n] for n in sorted(estimated)}, starts, maps))
+                          placement_errors(self.estimated(status), starts, maps))
 
     def merged_share(self, truth_from_merged: Optional[Pose]) -> Optional[float]:
         with self.lock:
@@ -295,7 +294,7 @@ class Supervisor:
             if status is not None:   # each robot's map in its colour where map_merge placed it
                 files['overlay'] = save_named_overlay(
                     os.path.join(self.out, 'merged_overlay.png'), robot_maps,
-                    {r.robot_namespace.strip('/'): _transform_pose(r.transform) for r in status.robots if r.included},
+                    included_poses(status),
                     [(p.robot_a.strip('/'), p.robot_b.strip('/'), p.confidence) for p in status.pairs if p.used])
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from typing import Dict, List, Tuple
@@ -27,19 +26,9 @@ from explore.coverage import PlacementTimeline, placement_errors  # noqa: E402
 from multirobot_map_merge.grid import GridError  # noqa: E402
 from multirobot_map_merge.ros.conversions import grid_from_msg, update_from_msg  # noqa: E402
 from multirobot_map_merge.ros.robot_maps import RobotMap  # noqa: E402
+from multirobot_map_merge.ros.status import included_poses  # noqa: E402
 
 Pose = Tuple[float, float, float]
-
-
-def status_poses(msg) -> Dict[str, Pose]:
-    """robot namespace -> (x, y, yaw) of its map frame in the merge, for the robots a MergeStatus includes."""
-    out = {}
-    for r in msg.robots:
-        if r.included:
-            q = r.transform.rotation
-            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-            out['/' + r.robot_namespace.strip('/')] = (r.transform.translation.x, r.transform.translation.y, yaw)
-    return out
 
 
 def main(argv: List[str] = None) -> int:
@@ -61,7 +50,7 @@ def main(argv: List[str] = None) -> int:
     statuses: List[Tuple[float, Dict[str, Pose]]] = []
     for topic, msg, _ in messages:
         if topic.endswith('/status'):
-            statuses.append((msg.header.stamp.to_sec(), status_poses(msg)))
+            statuses.append((msg.header.stamp.to_sec(), {'/' + n: p for n, p in included_poses(msg).items()}))
             continue
         robot_map = maps.setdefault(topic.rsplit('/', 1)[0], RobotMap())
         try:

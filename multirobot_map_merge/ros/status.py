@@ -2,13 +2,13 @@
 the merge cycle that publishes its placement, so that the transforms match the merged map sent with it."""
 from __future__ import annotations
 
-from typing import List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from ..grid import Grid
 from ..msg import MergeStatus, PairMatchStatus, RobotMergeStatus
-from .conversions import transform_msg
+from .conversions import transform_msg, yaw_from_quaternion
 from .discovery import append
 
 
@@ -44,3 +44,15 @@ def fill_transforms(status: MergeStatus, transforms: Sequence[Optional[np.ndarra
             entry.transform = transform_msg(world_from_merged @ t)
         else:
             entry.transform.rotation.w = 1.0   # identity, not an all-zero quaternion
+
+
+def included_poses(status: Optional[MergeStatus]) -> Dict[str, Tuple[float, float, float]]:
+    """Robot namespace (without slashes) -> (x, y, yaw) of its map frame in world_frame, for the robots a ~status
+    includes (read back by the demo's supervisor and scripts/status_errors.py)."""
+    out = {}
+    for r in (status.robots if status is not None else []):
+        if r.included:
+            q = r.transform.rotation
+            out[r.robot_namespace.strip('/')] = (r.transform.translation.x, r.transform.translation.y,
+                                                 yaw_from_quaternion(q.x, q.y, q.z, q.w))
+    return out
