@@ -349,8 +349,9 @@ def run(args: argparse.Namespace) -> dict:
 
 def _pose_of(transform) -> tuple:
     """(x, y, yaw) of a geometry_msgs/Transform turning about z only (the node's robot map -> world)."""
+    from multirobot_map_merge.ros.conversions import yaw_from_quaternion   # with the ROS imports: lazily
     q = transform.rotation
-    return transform.translation.x, transform.translation.y, 2.0 * math.atan2(q.z, q.w)
+    return transform.translation.x, transform.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 def wrong_placements(data: Path, statuses: List[Dict[str, tuple]], verbose: bool) -> Optional[List[int]]:

@@ -18,7 +18,7 @@ from nav_msgs.msg import OccupancyGrid
 from rospy.numpy_msg import numpy_msg
 
 from multirobot_map_merge.grid import Grid, GridError
-from multirobot_map_merge.ros.conversions import grid_from_msg
+from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
 from multirobot_map_merge.throttle import Throttle
 
 from .params import ExploreParams
@@ -129,7 +129,7 @@ class TeamLink:
 def _planar(t) -> Tuple[float, float, float, float]:
     """(x, y, cos yaw, sin yaw) of a TransformStamped's planar part (yaw about z)."""
     tr, q = t.transform.translation, t.transform.rotation
-    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    yaw = yaw_from_quaternion(q.x, q.y, q.z, q.w)   # tf2 keeps no non-finite transform
     return tr.x, tr.y, math.cos(yaw), math.sin(yaw)
 
 

@@ -28,14 +28,14 @@ from nav_msgs.msg import OccupancyGrid
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.mapio import load_map
-from multirobot_map_merge.ros.conversions import grid_from_msg
+from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
 
 PKG = 'multirobot_map_merge'
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def yaw_of(q) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 def goal_near(world, clearance, start, rng=(1.0, 2.0)):

@@ -24,11 +24,13 @@ from move_base_msgs.msg import MoveBaseAction, MoveBaseGoal
 from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Clock
 
+from multirobot_map_merge.ros.conversions import yaw_from_quaternion
+
 PKG = 'multirobot_map_merge'
 
 
 def yaw_of(q):
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 def pose_of(msg: PoseStamped):

@@ -16,6 +16,7 @@ import rospy
 
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.ros.conversions import yaw_from_quaternion
 
 SAMPLES = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'data', 'samples')
 
@@ -59,7 +60,7 @@ def rigid(x: float, y: float, yaw: float) -> np.ndarray:
 def matrix_of(transform) -> np.ndarray:
     """geometry_msgs/Transform (planar) -> 3x3."""
     q = transform.rotation
-    return rigid(transform.translation.x, transform.translation.y, 2.0 * math.atan2(q.z, q.w))
+    return rigid(transform.translation.x, transform.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
 
 
 def pose_error(a: np.ndarray, b: np.ndarray) -> tuple:
@@ -93,7 +94,8 @@ def merged_array(msg) -> np.ndarray:
 
 def merged_cell_to_world(msg) -> np.ndarray:
     o = msg.info.origin
-    g = rigid(o.position.x, o.position.y, 2.0 * math.atan2(o.orientation.z, o.orientation.w))
+    q = o.orientation
+    g = rigid(o.position.x, o.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
     return g @ np.diag([msg.info.resolution, msg.info.resolution, 1.0])
 
 
