@@ -260,6 +260,7 @@ def run(args: argparse.Namespace) -> dict:
 
         import rospy
         from multirobot_map_merge.msg import MergeStatus
+        from multirobot_map_merge.ros.status import included_poses
         rospy.init_node('bench_node_probe', disable_signals=True)
         merged_times: List[float] = []
         statuses: List[dict] = []
@@ -270,7 +271,7 @@ def run(args: argparse.Namespace) -> dict:
                 merged_times.append(time.monotonic())
 
         def on_status(msg) -> None:
-            placed = {r.robot_namespace.strip('/'): (r.included, _pose_of(r.transform)) for r in msg.robots}
+            placed = included_poses(msg)
             with lock:
                 statuses.append(dict(t=time.monotonic(), estimation_time=msg.estimation_time,
                                      robots=len(msg.robots), included=sum(r.included for r in msg.robots),
@@ -347,24 +348,18 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
-def _pose_of(transform) -> tuple:
-    """(x, y, yaw) of a geometry_msgs/Transform turning about z only (the node's robot map -> world)."""
-    from multirobot_map_merge.ros.conversions import yaw_from_quaternion   # with the ROS imports: lazily
-    q = transform.rotation
-    return transform.translation.x, transform.translation.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
-
-
 def wrong_placements(data: Path, statuses: List[Dict[str, tuple]], verbose: bool) -> Optional[List[int]]:
-    """For each ~status (robot name -> (included, (x, y, yaw))): how many included robots the shared scorer finds
-    placed wrong against the scenario's truth (robot_NN is the scenario's map NN). None without the scorer."""
+    """For each ~status (robot name -> (x, y, yaw) of the robots it includes, status.included_poses): how many
+    of them the shared scorer finds placed wrong against the scenario's truth (robot_NN is the scenario's map NN;
+    the others count as left out). None without the scorer."""
     score = scorer()
     if score is None:
         return None
     truth = json.loads((data / 'truth.json').read_text())
     counts = []
     for placed in statuses:
-        scored = score_placements(score, truth, {int(name.split('_')[-1]): tf.rigid(*pose) if included else None
-                                                 for name, (included, pose) in placed.items()})
+        scored = score_placements(score, truth, {int(name.split('_')[-1]): tf.rigid(*pose)
+                                                 for name, pose in placed.items()})
         counts.append(scored['wrong'])
         if verbose and scored['wrong']:
             print(f"  placed wrong (reference {scored['reference']}; file, degrees, cells): {wrong_of(scored)}")
