@@ -1,6 +1,7 @@
 """merge_maps: merge map_server maps, or the robot maps of a rosbag, offline (no roscore needed).
 
-    merge_maps [--confidence C] [--feature NAME] [--known-poses POSES.yaml [--legacy-cell-poses]]
+    merge_maps [--confidence C] [--feature NAME] [--free-threshold N] [--occupied-threshold N]
+               [--known-poses POSES.yaml [--legacy-cell-poses]]
                [--output PREFIX] [--png FILE] [--transforms-json FILE] MAP.yaml...
     merge_maps [options] --bag FILE.bag [--at SECONDS] [--topic-suffix map]
 
@@ -8,6 +9,8 @@ Writes PREFIX.pgm + PREFIX.yaml as map_saver does, a PNG preview (PREFIX.png unl
 overlay (PREFIX_overlay.png: each map in its own colour, with a legend), and with --transforms-json the placement
 of every map (the format of ../shared/eval/README.md). With --bag, every nav_msgs/OccupancyGrid topic <ns>/map of
 the bag (with <ns>/map_updates applied) is one robot, merged as it was at the end of the bag or at --at seconds.
+Maps may be trinary (map_saver's files) or hold probabilities (map_server's scale or raw mode, e.g. a Cartographer
+map): matching reads them through --free-threshold and --occupied-threshold, the merged map keeps their values.
 On a terminal, an estimation that takes over a second shows its progress.
 Exit codes: 0 merged (maybe with warnings), 1 nothing to merge (no map placed with a known cell), 2 bad input (a
 map, poses file or bag that cannot be read or is invalid, bad options), with a one-line reason. A map that can be
@@ -67,6 +70,12 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                          'agreement)')
     ap.add_argument('--feature', default=defaults.feature, choices=FEATURE_TYPES,
                     help='keypoint detector (default %(default)s)')
+    ap.add_argument('--free-threshold', type=int, default=defaults.free_threshold, metavar='N',
+                    help='highest occupancy (0..100) read as free when matching (default %(default)s, as map_saver)')
+    ap.add_argument('--occupied-threshold', type=int, default=defaults.occupied_threshold, metavar='N',
+                    help='lowest occupancy (0..100) read as a wall when matching (default %(default)s); the values '
+                         'between count as unknown (probabilistic maps, e.g. Cartographer\'s). The merged map keeps '
+                         'the values as published')
     ap.add_argument('--known-poses', metavar='POSES.yaml', help='merge at known initial poses instead of estimating')
     ap.add_argument('--legacy-cell-poses', action='store_true',
                     help='with --known-poses: the C++ 2.x semantics (x/y in cells, inverted, corner pivot)')
@@ -165,7 +174,8 @@ def warn_unused(maps: Sequence[str], pipeline: MergingPipeline) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = EstimationSettings(feature=args.feature, confidence=args.confidence, threads=max(args.threads, 1))
+    settings = EstimationSettings(feature=args.feature, confidence=args.confidence, threads=max(args.threads, 1),
+                                  free_threshold=args.free_threshold, occupied_threshold=args.occupied_threshold)
     try:
         settings.validate()
     except ValueError as e:

@@ -36,7 +36,7 @@ class MergingPipeline:
         self.settings.validate()
         self.cache = FeatureCache()
         self.memory = EstimationMemory()   # for a live fleet: see memory.py
-        self.grids: List[Optional[Grid]] = []        # as estimate sees them (None: absent, empty or unmatchable)
+        self.grids: List[Optional[Grid]] = []        # as estimate sees them: trinary (None: absent, empty, unmatchable)
         self.composable: List[Optional[Grid]] = []   # as compose sees them (None: absent or empty)
         self.transforms: List[Optional[np.ndarray]] = []
         self.reference: Optional[int] = None
@@ -50,13 +50,15 @@ class MergingPipeline:
         """Replace the grids, each admitted (validated, cells normalised) by admission.admit; `invalid_cells`
         counts the cells read as unknown. With `matching` (the grids may be estimated; the default) a grid the
         estimation cannot match is None in `grids` (what estimate sees), with the reason in `refused`; it is still
-        composed at a known pose. Transforms are kept only if the number of grids is unchanged."""
+        composed at a known pose; with `matching` the grids estimate sees are read as trinary through the settings'
+        free_threshold and occupied_threshold (compose keeps the values as published). Transforms are kept only if
+        the number of grids is unchanged."""
         work = self.settings.min_work_resolution if matching else None
-        admitted = [admit(g, work) for g in grids]
+        admitted = [admit(g, work, self.settings.free_threshold, self.settings.occupied_threshold) for g in grids]
         self.invalid_cells = {k: a.invalid_cells for k, a in enumerate(admitted) if a.invalid_cells}
         self.refused = {k: a.refused for k, a in enumerate(admitted) if a.refused}
         self.composable = [a.grid for a in admitted]
-        grids = [None if a.refused else a.grid for a in admitted]
+        grids = [None if a.refused else (a.grid if a.matching is None else a.matching) for a in admitted]
         if len(grids) != len(self.grids):
             self.transforms = [None] * len(grids)
             self.reference = None

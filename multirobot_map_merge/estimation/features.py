@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from .. import transforms as tf
+from ..admission import FREE_THRESHOLD, OCCUPIED_THRESHOLD, check_thresholds
 from ..grid import Grid, crop_to_known
 from .validation import must_be_positive
 
@@ -35,11 +36,16 @@ CROP_MARGIN = 4  # cells kept around the known part, so features at its border s
 class FeatureSettings:
     feature: str = 'akaze'            # keypoint detector: akaze (as the C++ node), orb (as the thesis) or sift
     min_work_resolution: float = 0.05  # m/pixel: finer maps are matched at this resolution
+    # how a grid's occupancies are read for matching (admission.trinary_cells): <= free_threshold free,
+    # >= occupied_threshold a wall, the values between (a probabilistic map's uncertain cells) unknown
+    free_threshold: int = FREE_THRESHOLD
+    occupied_threshold: int = OCCUPIED_THRESHOLD
 
     def validate(self) -> None:
         if self.feature not in FEATURE_TYPES:
             raise ValueError(f"feature must be one of {', '.join(FEATURE_TYPES)}, not '{self.feature}'")
         must_be_positive(self, 'min_work_resolution')
+        check_thresholds(self.free_threshold, self.occupied_threshold)
 
 
 @dataclass

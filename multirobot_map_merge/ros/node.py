@@ -40,7 +40,9 @@ missing is retried at every discovery pass (as the original) with a throttled wa
 robot map's header.frame_id (or `<robot_ns>/map` when empty) without a leading '/', as tf2 requires. Cell values
 outside -1 and 0..100 are read as unknown, and a robot whose map or placement would make the merged grid unusable
 (non-finite, over ~max_merged_cells) is left out of that cycle, each with a throttled warning naming the robot
-(admission.py, compose.select_parts); the other robots are merged as usual.
+(admission.py, compose.select_parts); the other robots are merged as usual. Maps are matched as trinary through
+~free_threshold and ~occupied_threshold (probabilistic maps, e.g. Cartographer's, are placed too); the merged map
+keeps the values as published, combined as the original (maximum).
 `~status` transforms are robot map frame -> world_frame as placed by the latest merge cycle.
 """
 from __future__ import annotations

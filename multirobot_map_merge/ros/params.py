@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from ..admission import FREE_THRESHOLD, OCCUPIED_THRESHOLD, check_thresholds
 from ..estimation.settings import EstimationSettings
 from ..grid import MAX_CELLS
 from ..paramdoc import ParamDoc, param
@@ -49,6 +50,11 @@ class MapMergeParams:
     legacy_cell_poses: bool = _p(False, 'extra: read init poses as the C++ 2.x node does (cells, inverted, corner '
                                         'pivot)')
     feature: str = _p('akaze', 'extra: keypoint detector of the estimator (akaze as the original, orb, sift)')
+    free_threshold: int = _p(FREE_THRESHOLD, 'extra: highest occupancy (0..100) read as free when maps are matched '
+                                             '(map_saver\'s); the merged map keeps the values as published')
+    occupied_threshold: int = _p(OCCUPIED_THRESHOLD, 'extra: lowest occupancy (0..100) read as a wall when maps are '
+                                                     'matched; the values between the two thresholds (a probabilistic '
+                                                     'map\'s uncertain cells, e.g. Cartographer\'s) count as unknown')
     max_merged_cells: int = _p(1 << 24, 'extra: largest merged grid (cells); a robot whose map or placement would '
                                         'make it larger is left out of that cycle with a warning (1..2^28)')
 
@@ -84,11 +90,19 @@ class MapMergeParams:
                     warn(f"parameter {prefix}{f.name} = {raw!r} {problem}; using the default {f.default!r}")
                 value = f.default
             values[f.name] = value
+        try:
+            check_thresholds(values['free_threshold'], values['occupied_threshold'])
+        except ValueError as e:
+            if warn is not None:
+                warn(f'parameters {prefix}free_threshold, {prefix}occupied_threshold: {e}; using the defaults '
+                     f'{FREE_THRESHOLD}, {OCCUPIED_THRESHOLD}')
+            values['free_threshold'], values['occupied_threshold'] = FREE_THRESHOLD, OCCUPIED_THRESHOLD
         return cls(**values)
 
     def estimation_settings(self) -> EstimationSettings:
         return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence,
-                                  search_budget_s=SEARCH_BUDGET)
+                                  search_budget_s=SEARCH_BUDGET, free_threshold=self.free_threshold,
+                                  occupied_threshold=self.occupied_threshold)
 
 
 _ANNOT = {'float': float, 'bool': bool, 'str': str, 'int': int}
