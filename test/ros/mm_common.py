@@ -2,7 +2,8 @@
 
 Map specs are strings "<name>=<map yaml>": the yaml relative to the repo's data/samples (or absolute); the name is a
 topic for mm_sample_map_publisher.py ("/robot1/map=three_robots/map_00.yaml") and a robot namespace for the checkers
-("/robot1=three_robots/map_00.yaml").
+("/robot1=three_robots/map_00.yaml"). A suffix "@kind" publishes the map as another kind of SLAM map
+("three_robots/map_01.yaml@probabilistic": see map_kinds.py; seeded by the map's position in the list).
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 import rospy
 
+import map_kinds
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.ros.conversions import yaw_from_quaternion
@@ -25,18 +27,25 @@ def sample_path(path: str) -> str:
     return path if os.path.isabs(path) else os.path.join(SAMPLES, path)
 
 
-def load_spec(spec: str, frame_id: str = '') -> tuple:
-    """(name, Grid) of one map spec."""
+def split_kind(path: str) -> tuple:
+    """(map yaml, kind) of a spec's path: "a.yaml@thin" -> ("a.yaml", "thin"); the kind is "trinary" by default."""
+    path, _, kind = path.partition('@')
+    return path, kind or 'trinary'
+
+
+def load_spec(spec: str, frame_id: str = '', seed: int = 0) -> tuple:
+    """(name, Grid) of one map spec, as the kind its path names (seeded by `seed`)."""
     name, path = spec.split('=', 1)
-    return name, load_map(sample_path(path), frame_id)
+    path, kind = split_kind(path)
+    return name, map_kinds.as_kind(load_map(sample_path(path), frame_id), kind, seed)
 
 
 def robot_maps(specs: List[str]) -> Dict[str, Grid]:
     """{robot namespace: Grid} of "ns=file.yaml" specs; each map's frame is '<ns without leading slash>/map'."""
     out = {}
-    for spec in specs:
+    for k, spec in enumerate(specs):
         ns = spec.split('=', 1)[0]
-        out[ns] = load_spec(spec, ns.strip('/') + '/map')[1]
+        out[ns] = load_spec(spec, ns.strip('/') + '/map', seed=k)[1]
     return out
 
 
@@ -47,7 +56,7 @@ def truth_poses(truth_file: str, specs: List[str]) -> Dict[str, np.ndarray]:
     out = {}
     for spec in specs:
         ns, path = spec.split('=', 1)
-        x, y, yaw = by_file[os.path.basename(path)]
+        x, y, yaw = by_file[os.path.basename(split_kind(path)[0])]
         out[ns] = rigid(x, y, yaw)
     return out
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Test helper: publishes map_server map files latched, one OccupancyGrid per topic.
 
-Params: ~maps: list of "topic=relative/or/absolute.yaml" (relative to the repo's data/samples); ~frame_ids
+Params: ~maps: list of "topic=relative/or/absolute.yaml[@kind]" (relative to the repo's data/samples; kind: how a
+SLAM package publishes it, see mm_common / map_kinds.py); ~frame_ids
 (optional list, same order; default: '<topic ns>/map'); ~delay (s, default 0) before publishing; ~lifetime (s,
 default 0 = forever): exit after it (a robot that vanishes).
 """
@@ -21,7 +22,7 @@ def main():
     for k, spec in enumerate(specs):
         topic = spec.split('=', 1)[0]
         frame = frames[k] if k < len(frames) else topic.rsplit('/', 1)[0].strip('/') + '/map'
-        grid = load_spec(spec, frame)[1]
+        grid = load_spec(spec, frame, seed=k)[1]
         pub = rospy.Publisher(topic, OccupancyGrid, queue_size=1, latch=True)
         pub.publish(grid_to_msg(grid, stamp=rospy.Time.now()))
         pubs.append(pub)
