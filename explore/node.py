@@ -87,8 +87,8 @@ class ExploreNode:
         self._first_map = threading.Event()
         marker_pub = rospy.Publisher('~frontiers', MarkerArray, queue_size=10) if params.visualize else None
         self.loop = PlanningLoop(params, self.costmap, self.robot_pose, self._throttle, marker_pub)
-        # numpy_msg: int8[] cells arrive as an ndarray, not a tuple of Python ints (a 480 x 320 map: 0.02 instead of
-        # 10.6 ms; six explorers took most of a core for their maps alone); same type and md5 on the wire
+        # numpy_msg: int8[] cells arrive as an ndarray, not a tuple of Python ints (hundreds of times as long to
+        # build: six explorers would spend most of a core on their maps alone); same type and md5 on the wire
         self._map_sub = rospy.Subscriber(params.costmap_topic, numpy_msg(OccupancyGrid), self._on_map,
                                          queue_size=1000, buff_size=1 << 24)
         self._updates_sub = None

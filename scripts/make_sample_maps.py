@@ -235,8 +235,8 @@ GENERATED: Dict[str, dict] = {
                 'broken_deg': (10.0, 40.0),   # |rotation| of the part after the break
                 'min_linked': 0.75},          # healthy maps with an overlapping neighbour, else retune the spec
 }
-# the same fleet spec in three more buildings, with other robots: large36 alone flatters (it was the fastest of the
-# four to estimate, 5 s against 7.9-8.7 s)
+# the same fleet spec in three more buildings, with other robots: large36 alone flatters (it is the fastest of the
+# four to estimate)
 for _name, _world_seed, _seed in (('large36_b', 6, 37), ('large36_c', 7, 38), ('large36_d', 8, 39)):
     GENERATED[_name] = dict(GENERATED['large36'], world_seed=_world_seed, seed=_seed)
 

@@ -17,7 +17,7 @@ replay's placements).
 
 --pace SPEEDUP replays the node's cadence instead (to compare its timing settings offline, without the noise of
 live runs): an estimation starts with the maps of that moment, takes its replayed wall time times --contention
-(the live node shares the CPU with the simulator and the explorers: a 6-robot demo's estimations took 2-3 times
+(the live node shares the CPU with the simulator and the explorers: a 6-robot demo's estimations take 2-3 times
 their replayed time) times SPEEDUP in sim time, counts its placements when it ends, and the next one starts after
 the estimation period and the node's rest (ESTIMATION_REST), or at once when a new robot's first map came; the
 search budget shrinks by the contention, as the live node's wall-clock budget buys fewer searches.

@@ -37,7 +37,7 @@ from .union import footprint
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 
 # metres at a map's corners: an estimate afresh from the final maps replaces the kept placements when it moves one
-# by more (or places more maps); below, the two differ by the usual noise (up to 4.7 cm in a replayed demo run) and
+# by more (or places more maps); below, the two differ by the usual noise (a few cm) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
 
@@ -62,8 +62,8 @@ def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSett
 
 def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -> List[Group]:
     """Groups formed by descriptors, grown by the correlation search: the largest one merges with the other groups
-    (the unions first: a grid searched against the small union would be searched again against the merged one;
-    36 generated maps: 23 searches before, 15 now), searches the grids left alone (smallest first), then regroups
+    (the unions first: a grid searched against the small union would be searched again against the merged one),
+    searches the grids left alone (smallest first), then regroups
     the members of the groups that did not merge without their seeds and tries those groups, and last searches
     again the grids whose search failed, against the group grown as far as it could otherwise
     (Grower.search_again); while the grids outside it could still form a larger group, the largest of those does
@@ -164,8 +164,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
     settled = inputs is not None and all(memory.latest.get(n) == c for n, c in inputs)
     # afresh only in the estimation after the one that found the maps settled: that one re-checks every placement
-    # on the final maps (tracking's verdicts), and both in one estimation took the node's longest one past 5 s
-    # (30 robots: 5.4 s); this one's tracking finds every verdict standing
+    # on the final maps (tracking's verdicts), and both in one estimation would take the node's longest one (30
+    # robots) past its 5 s bound; this one's tracking finds every verdict standing
     due = settled and memory.settled_inputs == inputs and memory.fresh_inputs != inputs
     result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents)
     if inputs is not None:

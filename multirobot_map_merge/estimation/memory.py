@@ -44,8 +44,8 @@ def changed(before: Grid, after: Grid) -> Tuple[float, float]:
         old = before.data[r0:r1, c0:c1]
         new = after.data[r0 + dy:r1 + dy, c0 + dx:c1 + dx]
         known = old >= 0
-        # classes: unknown (< 0), free (0-49), occupied (>= 50); boolean masks, not class images (a live profile
-        # of the node: 7 % of its busy time went to building them)
+        # classes: unknown (< 0), free (0-49), occupied (>= 50); boolean masks, not class images (building
+        # them is a noticeable share of a live node's time)
         moved = known & ((new < 0) | ((new >= 50) != (old >= 50)))
         revised = old_known - int(np.count_nonzero(known)) + int(np.count_nonzero(moved))
     return max(new_known - old_known, 0) / old_known, revised / old_known

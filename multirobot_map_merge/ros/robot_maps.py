@@ -105,9 +105,9 @@ class EstimationGate:
     """Whether the estimation loop estimates again: not on maps the last estimations were made on (static maps cost
     no CPU), but twice more on maps that have stopped changing. In the first of those, tracking checks every kept
     placement on the final maps; in the second, estimator.estimate compares the kept placements with an estimate
-    afresh from those maps (skipped at once, as before, it never ran in the node: a live demo ended with a robot
-    0.37 degrees and 17 cm off, its final maps estimated afresh placing it within 3 cm; in one estimation with the
-    checks, it took the longest estimation of 30 robots to 5.4 s). Estimation thread only."""
+    afresh from those maps (skipped at once, it would never run in the node; tracking can leave a robot a few tenths
+    of a degree off that its final maps, estimated afresh, place within centimetres; and both in one estimation would
+    make the longest estimation of 30 robots too long). Estimation thread only."""
 
     REPEATS = 2   # estimations on the same maps after the first
 
