@@ -104,17 +104,19 @@ def relative_error(doc, truth):
     return math.hypot(d[0, 2], d[1, 2]), abs(math.degrees(math.atan2(d[1, 0], d[0, 0])))
 
 
-@pytest.mark.parametrize('kind', map_kinds.KINDS)
-def test_merge_maps_places_each_kind_of_a_real_pair(kind, shared_dir, tmp_path):
+@pytest.mark.parametrize('kinds', [(kind, kind) for kind in map_kinds.KINDS]
+                         + [('trinary', 'probabilistic'), ('thin', 'probabilistic')], ids='-'.join)
+def test_merge_maps_places_each_kind_of_a_real_pair(kinds, shared_dir, tmp_path):
+    """Each kind alone, and fleets that mix SLAM packages."""
     folder = shared_dir / PAIR
     truth = json.loads((folder / 'truth.json').read_text())
     paths = []
-    for k, entry in enumerate(truth['maps']):
+    for k, (entry, kind) in enumerate(zip(truth['maps'], kinds)):
         grid = map_kinds.as_kind(load_map(str(folder / entry['file'])), kind, seed=SEED + k)
         paths.append(map_kinds.save_raw(grid, str(tmp_path / f'{kind}_{k}')))
     print('seed', SEED)
-    between = [((load_map(p).data > 0) & (load_map(p).data < 100)).any() for p in paths]
-    assert between == [kind == 'probabilistic'] * 2   # the files hold that kind
+    between = [bool(((load_map(p).data > 0) & (load_map(p).data < 100)).any()) for p in paths]
+    assert between == [kind == 'probabilistic' for kind in kinds]   # the files hold those kinds
     out = tmp_path / 'placed.json'
     assert cli.main(['--transforms-json', str(out), '--output', str(tmp_path / 'merged')] + paths) == 0
     doc = json.loads(out.read_text())

@@ -1,5 +1,6 @@
 """Stage 1 of estimation: per-grid preparation and feature detection.
 
+Grids arrive trinary (-1/0/100: MergingPipeline.feed reads probabilistic maps through admission.trinary_cells).
 Each grid is cropped to its known part (hector-style canvases are mostly unknown), brought to the common working
 resolution, and described by keypoints + descriptors, its wall pixels and a nearest-wall lookup used by refinement
 and verification. Results are cached per grid content, so an unchanged grid is never processed twice.
