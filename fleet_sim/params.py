@@ -101,9 +101,9 @@ class FleetSimParams:
     drift_yaw: float = _p(0.0, "Heading error the SLAM's scan matching leaves per metre driven (a random walk: "
                           "after d metres its standard deviation is drift_yaw * sqrt(d)); the pose on TF and the "
                           "map are the robot's belief, its error grows from 0 at the start pose.", 'deg/√m',
-                          realistic=0.1)
+                          realistic=0.05)
     drift_xy: float = _p(0.0, "Position error left per metre driven, per axis (random walk, as `~drift_yaw`).",
-                         'm/√m', realistic=0.01)
+                         'm/√m', realistic=0.005)
     loop_closure_path: float = _p(10.0, "With drift: a robot back within 1 m of a place it passed this much path "
                                   "ago closes a loop: its belief jumps back to the error it had there (a visible "
                                   "jump on TF), and its later scans fit the map it drew there.", 'm')
