@@ -22,7 +22,8 @@ PlacementTimeline: placement_timeline in summary.json holds how long the merge w
 (start of the stretch in the merged map that lasts until the end) and latency_s; `progress` holds the progress
 lines (sim s, real s, explored share, robots merged and joinable) for the fleet benchmark (bench/bench_fleet.py).
 
-Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup (for the summary),
+Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup and ~realistic (fleet_sim's
+realistic profile; both for the summary),
 ~merged_topic, ~status_topic, ~world_topic (default /fleet_sim/world_map).
 """
 import json
@@ -72,6 +73,7 @@ class Supervisor:
         self.limit_sim = float(rospy.get_param('~limit_sim', 1200.0))
         self.limit_wall = float(rospy.get_param('~limit_wall', 240.0))
         self.speedup = float(rospy.get_param('~speedup', 1.0))
+        self.realistic = bool(rospy.get_param('~realistic', False))
         self.estimation_rate = float(rospy.get_param('/map_merge/map_merge/estimation_rate', 0.5))
         self.lock = threading.Lock()   # owns everything below, written by the callbacks
         self.world: Optional[Grid] = None
@@ -297,11 +299,13 @@ class Supervisor:
                     included_poses(status),
                     [(p.robot_a.strip('/'), p.robot_b.strip('/'), p.confidence) for p in status.pairs if p.used])
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
+                   'realistic': self.realistic,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
                    'placement': rows, 'placement_timeline': timeline, 'files': files, 'progress': self.progress,
                    # ground-truth start poses (x, y, yaw in the world): with robots/*.yaml, a merge replays offline
                    'start_poses': {name: list(pose) for name, pose in sorted(self.starts.items())}}
-        lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
+        lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g}'
+                 + (', realistic robots)' if self.realistic else ')'),
                  f"demo: explored {_pct(share)} of the reachable area (the robots' maps at their "
                  f"true poses); the merged map covers {_pct(merged_share)}",
                  f"demo: map_merge placed {sum(r['included'] for r in rows)} of {len(rows)} robots without known "
