@@ -60,7 +60,8 @@ class FleetSimParams:
     robots: list = _p(None, "List of `{ns: robot_1, x: .., y: .., yaw: ..}` (world metres, radians; `ns` "
                       "optional, default `robot_<i>`). Empty: `~num_robots` robots at random free poses.")
     num_robots: int = _p(1, "Number of robots when `~robots` is not given.")
-    seed: int = _p(0, "Seed of the random start poses and of the laser noise.")
+    seed: int = _p(0, "Seed of the random start poses, the laser noise and the realistic profile's glass, people, "
+                   "doors and drift.")
     map_frame: str = _p('map', "Last component of each robot's map frame: `<ns>/<map_frame>`.")
     base_frame: str = _p('base_link', "Last component of each robot's base frame: `<ns>/<base_frame>`.")
     robot_radius: float = _p(0.2, "Robot radius: the robot centre keeps this far from world walls; the planner "
