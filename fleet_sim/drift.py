@@ -39,8 +39,9 @@ class LoopClosure:
 
 class SlamDrift:
     def __init__(self, rng: np.random.Generator, yaw_deg_per_sqrt_m: float, xy_m_per_sqrt_m: float,
-                 loop_closure_path: float) -> None:
-        self.rng = rng
+                 loop_closure_path: float, label: str = 'robot') -> None:
+        """label: the robot's name in the log."""
+        self.rng, self.label = rng, label
         self.yaw_sd = math.radians(yaw_deg_per_sqrt_m)
         self.xy_sd = xy_m_per_sqrt_m
         self.loop_closure_path = loop_closure_path
@@ -100,7 +101,8 @@ class SlamDrift:
         jump_m = math.hypot(after[0] - before[0], after[1] - before[1])
         jump_deg = abs(math.degrees(math.remainder(after[2] - before[2], 2 * math.pi)))
         self.closures.append(LoopClosure(self.path_m, jump_m, jump_deg))
-        _log.debug('loop closed after %.1f m: the pose jumped %.1f cm, %.2f deg', self.path_m, 100 * jump_m, jump_deg)
+        _log.info('%s: loop closed after %.1f m of path: the pose jumped %.1f cm, %.2f deg', self.label, self.path_m,
+                  100 * jump_m, jump_deg)
 
 
 def _inverse(p: Sequence[float]) -> Pose:

@@ -177,7 +177,7 @@ class People:
 
     def _next_goal(self, p: np.ndarray, tries: int = 30) -> np.ndarray:
         res, (ox, oy) = self.clear.res, self.clear.origin
-        for _ in range(tries):
+        for _ in range(tries if len(self._places) else 0):
             r, c = self._places[int(self.rng.integers(len(self._places)))]
             x, y = ox + (c + 0.5) * res, oy + (r + 0.5) * res
             if math.hypot(x - p[0], y - p[1]) > 1.0 and self.clear.segment_free(p, (x, y), PERSON_RADIUS):

@@ -105,13 +105,16 @@ class FleetSim:
             if params.glass_panes else None
         self.doors = Doors(self.world, occ, np.random.default_rng([params.seed, 0, 2]), params.door_changes,
                            params.door_period) if params.door_changes > 0.0 else None
-        self.people = People(self.clearance, np.random.default_rng([params.seed, 0, 3]), params.people) \
-            if params.people else None
+        try:
+            self.people = People(self.clearance, np.random.default_rng([params.seed, 0, 3]), params.people) \
+                if params.people else None
+        except ValueError as e:
+            raise ParamError(f"~people: {e}") from None
         self.robots: List[SimRobot] = [
             SimRobot(s.ns, (s.x, s.y, s.yaw), occ, self.world.resolution, self.world.origin, self.clearance, cfg,
                      np.random.default_rng([params.seed, i + 1]),
                      drift=SlamDrift(np.random.default_rng([params.seed, i + 1, 1]), params.drift_yaw,
-                                     params.drift_xy, params.loop_closure_path) if params.drift else None,
+                                     params.drift_xy, params.loop_closure_path, s.ns) if params.drift else None,
                      glass=self.glass)
             for i, s in enumerate(specs)]
         self.specs: List[RobotSpec] = specs
