@@ -160,13 +160,17 @@ class People:
             if count else np.zeros((0, 2))
         self.goal = self.pos.copy()
         self._places = np.argwhere(clearance.dist >= PERSON_RADIUS + 0.1)    # (row, col) a person fits in
+        self._wait = np.zeros(count)       # s a person stands before choosing where to go next
 
     def step(self, dt: float) -> None:
         for i in range(len(self.pos)):
             d = self.goal[i] - self.pos[i]
             dist = float(np.hypot(*d))
             if dist < 1e-6:
-                self.goal[i] = self._next_goal(self.pos[i])
+                self._wait[i] -= dt
+                if self._wait[i] <= 0.0:
+                    self.goal[i] = self._next_goal(self.pos[i])
+                    self._wait[i] = float(self.rng.uniform(0.0, 3.0))   # people stop a while, then walk on
                 continue
             move = min(dist, PERSON_SPEED * dt)
             nxt = self.pos[i] + d / dist * move
@@ -175,7 +179,7 @@ class People:
             else:                                # a door shut in the way: turn back
                 self.goal[i] = self.pos[i]
 
-    def _next_goal(self, p: np.ndarray, tries: int = 30) -> np.ndarray:
+    def _next_goal(self, p: np.ndarray, tries: int = 10) -> np.ndarray:
         res, (ox, oy) = self.clear.res, self.clear.origin
         for _ in range(tries if len(self._places) else 0):
             r, c = self._places[int(self.rng.integers(len(self._places)))]
