@@ -50,6 +50,7 @@ from rospy.numpy_msg import numpy_msg
 from explore.coverage import (KnownRaster, PlacementTimeline, explored_share, placement_errors, reachable_mask,
                              truth_from_estimate)
 from explore.merge_latency import LatencyTracker, joinable_robots
+from fleet_sim.mapping import relative_pose
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
@@ -247,9 +248,7 @@ class Supervisor:
                 q = t.transform.rotation
                 belief = (t.transform.translation.x, t.transform.translation.y,
                           yaw_from_quaternion(q.x, q.y, q.z, q.w))
-                c, s = math.cos(start[2]), math.sin(start[2])
-                dx, dy = true[0] - start[0], true[1] - start[1]
-                truth = (c * dx + s * dy, -s * dx + c * dy, true[2] - start[2])
+                truth = relative_pose(start, true)
                 row['slam_error_cm'] = 100 * math.hypot(belief[0] - truth[0], belief[1] - truth[1])
                 row['slam_error_deg'] = abs(math.degrees(math.remainder(belief[2] - truth[2], 2 * math.pi)))
             out[n] = row
