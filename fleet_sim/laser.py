@@ -61,13 +61,52 @@ def cast(world_occ: np.ndarray, resolution: float, pose: Sequence[float], n_beam
                 args = (py, px, iy0, ix0, dy[beams], dx[beams], H, W, W + 2, 1)
             ranges[beams] = _cast_major(occ_p, *args, limit)
         ranges *= resolution
-    if sigma > 0.0 or dropout > 0.0:
+    return add_noise(ranges, rng, sigma, dropout)
+
+
+def add_noise(ranges: np.ndarray, rng: Optional[np.random.Generator], sigma: float, dropout: float = 0.0,
+              sigma_per_m: float = 0.0) -> np.ndarray:
+    """Gaussian noise on the finite ranges (standard deviation sigma + sigma_per_m * range, never below 0) and a
+    ``dropout`` share of beams dropped (NaN), in place; returns ``ranges``."""
+    if sigma > 0.0 or dropout > 0.0 or sigma_per_m > 0.0:
         rng = rng if rng is not None else np.random.default_rng()
         finite = np.isfinite(ranges)
-        if sigma > 0.0:
+        if sigma_per_m > 0.0:
+            sd = sigma + sigma_per_m * ranges[finite]
+            ranges[finite] = np.maximum(0.0, ranges[finite] + sd * rng.standard_normal(int(finite.sum())))
+        elif sigma > 0.0:
             ranges[finite] = np.maximum(0.0, ranges[finite] + rng.normal(0.0, sigma, int(finite.sum())))
         if dropout > 0.0:
-            ranges[rng.random(n) < dropout] = np.nan
+            ranges[rng.random(ranges.size) < dropout] = np.nan
+    return ranges
+
+
+def glass_no_return(ranges: np.ndarray, angles: np.ndarray, pose: Sequence[float], glass: np.ndarray,
+                    resolution: float, origin: Tuple[float, float] = (0.0, 0.0),
+                    max_incidence_deg: float = 10.0) -> np.ndarray:
+    """No return (+inf), in place, for the beams of a noiseless scan whose hit cell is glass, unless they meet the
+    glass within ``max_incidence_deg`` of its normal (a pane reflects a laser back only head-on). ``glass`` is a
+    bool grid like cast()'s world_occ; ``angles`` are relative to the pose's yaw. Returns ``ranges``."""
+    hit = np.flatnonzero(np.isfinite(ranges) & (ranges > 0.0))
+    if hit.size == 0:
+        return ranges
+    a = float(pose[2]) + angles[hit]
+    dx, dy = np.cos(a), np.sin(a)
+    # the hit point lies on the face of the hit cell: a little further along the beam is inside it
+    t = ranges[hit] / resolution
+    px = (float(pose[0]) - origin[0]) / resolution + t * dx
+    py = (float(pose[1]) - origin[1]) / resolution + t * dy
+    c = np.floor(px + 1e-6 * np.sign(dx)).astype(np.int64)
+    r = np.floor(py + 1e-6 * np.sign(dy)).astype(np.int64)
+    h, w = glass.shape
+    inside = (c >= 0) & (c < w) & (r >= 0) & (r < h)
+    on_glass = np.zeros(hit.size, bool)
+    on_glass[inside] = glass[r[inside], c[inside]]
+    # the face the beam entered by: a vertical one (normal along x) where x is on a cell boundary
+    on_x_face = np.abs(px - np.round(px)) <= np.abs(py - np.round(py))
+    cos_incidence = np.where(on_x_face, np.abs(dx), np.abs(dy))
+    head_on = cos_incidence >= np.cos(np.radians(max_incidence_deg))
+    ranges[hit[on_glass & ~head_on]] = np.inf
     return ranges
 
 
@@ -204,11 +243,4 @@ def cast_stepwise(world_occ: np.ndarray, resolution: float, pose: Sequence[float
         iy[ay] += step_y[ay]
         t_max_y[ay] += t_dy[ay]
 
-    if sigma > 0.0 or dropout > 0.0:
-        rng = rng if rng is not None else np.random.default_rng()
-        finite = np.isfinite(ranges)
-        if sigma > 0.0:
-            ranges[finite] = np.maximum(0.0, ranges[finite] + rng.normal(0.0, sigma, int(finite.sum())))
-        if dropout > 0.0:
-            ranges[rng.random(n) < dropout] = np.nan
-    return ranges
+    return add_noise(ranges, rng, sigma, dropout)

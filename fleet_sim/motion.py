@@ -23,12 +23,13 @@ Pose = Tuple[float, float, float]
 class Clearance:
     """Distance (metres) from every world cell centre to the nearest blocking cell centre."""
 
-    def __init__(self, world: Grid) -> None:
+    def __init__(self, world: Grid, blocked: Optional[np.ndarray] = None) -> None:
+        """blocked: the cells that block robots, if not obstacle_mask(world) (e.g. with doors shut)."""
         if abs(world.origin[2]) > 1e-9:
             raise ValueError("world maps with a rotated origin are not supported")
         self.res = world.resolution
         self.origin = world.origin[:2]
-        self.blocked = obstacle_mask(world)
+        self.blocked = obstacle_mask(world) if blocked is None else blocked
         self.dist = cv2.distanceTransform((~self.blocked).astype(np.uint8), cv2.DIST_L2, 5) * self.res
         self.shape = self.blocked.shape
 

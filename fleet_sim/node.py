@@ -5,7 +5,8 @@ Node name `fleet_sim`. Per robot `<ns>` (no leading slash; frames `<ns>/<map_fra
   * `<ns>/map` (nav_msgs/OccupancyGrid, latched, ~map_rate while the map changes) and `<ns>/map_updates`
     (map_msgs/OccupancyGridUpdate of the changed rectangle, ~update_rate; a full map instead when the map grew):
     log-odds map of the robot's laser in its own map frame, whose origin is the robot's start pose;
-  * TF `<ns>/map` -> `<ns>/base_link` (~tf_rate);
+  * TF `<ns>/map` -> `<ns>/base_link` (~tf_rate): the pose the maps are drawn at (with ~drift_yaw, ~drift_xy the
+    SLAM's belief, not the true pose);
   * `<ns>/move_base` (move_base_msgs/MoveBaseAction): goals in frame `<ns>/map` (or empty); plans on the robot's own
     map with unknown space traversable, drives, re-plans when the path meets a discovered wall; SUCCEEDED within
     ~goal_tolerance, ABORTED when there is no path or the robot is stuck, PREEMPTED on cancel or a new goal;
@@ -173,7 +174,7 @@ class FleetSimNode:
         n = r.cfg.n_beams
         msg.angle_min = float(r.angles[0])
         msg.angle_increment = 2.0 * math.pi / n
-        msg.angle_max = msg.angle_min + (n - 1) * msg.angle_increment
+        msg.angle_max = msg.angle_min + (len(r.angles) - 1) * msg.angle_increment   # within ~fov
         msg.scan_time = 1.0 / self.params.scan_rate
         msg.range_min = 0.0
         msg.range_max = float(r.cfg.max_range)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, fields
-from typing import Any, List, Mapping, Optional
+from typing import Any, Dict, List, Mapping, Optional
 
 from multirobot_map_merge.paramdoc import ParamDoc, param
 from multirobot_map_merge.paramdoc import describe as describe_params
@@ -20,7 +20,20 @@ class ParamError(ValueError):
     """A parameter value the simulator cannot run with."""
 
 
-_p = param
+# the values of the `realistic` profile, one per parameter it changes, filled by _p below
+REALISTIC: Dict[str, Any] = {}
+
+
+def _p(default: Any, doc: str, unit: str = '', realistic: Any = None) -> Any:
+    """A parameter field (paramdoc.param); ``realistic``: its value under ``~profile: realistic``, which its
+    documentation then states, so the profile, the docstring and the doc table come from this one place."""
+    field = param(default, doc + (f" *realistic*: `{_shown(realistic)}`." if realistic is not None else ''), unit)
+    field.metadata = {**field.metadata, 'realistic': realistic}
+    return field
+
+
+def _shown(value: Any) -> str:
+    return ('true' if value else 'false') if isinstance(value, bool) else str(value)
 
 
 @dataclass(frozen=True)
@@ -47,7 +60,8 @@ class FleetSimParams:
     robots: list = _p(None, "List of `{ns: robot_1, x: .., y: .., yaw: ..}` (world metres, radians; `ns` "
                       "optional, default `robot_<i>`). Empty: `~num_robots` robots at random free poses.")
     num_robots: int = _p(1, "Number of robots when `~robots` is not given.")
-    seed: int = _p(0, "Seed of the random start poses and of the laser noise.")
+    seed: int = _p(0, "Seed of the random start poses, the laser noise and the realistic profile's glass, people, "
+                   "doors and drift.")
     map_frame: str = _p('map', "Last component of each robot's map frame: `<ns>/<map_frame>`.")
     base_frame: str = _p('base_link', "Last component of each robot's base frame: `<ns>/<base_frame>`.")
     robot_radius: float = _p(0.2, "Robot radius: the robot centre keeps this far from world walls; the planner "
@@ -61,9 +75,39 @@ class FleetSimParams:
                               "time) and ABORTS after 3 such re-plans in a row.", 's')
     # --- the sensor and the SLAM stand-in ---
     resolution: float = _p(0.05, "Resolution of the robots' maps.", 'm')
-    n_beams: int = _p(360, "Laser beams over a full turn.")
-    max_range: float = _p(5.0, "Laser range.", 'm')
-    range_noise: float = _p(0.01, "Standard deviation of the Gaussian range noise.", 'm')
+    profile: str = _p('', "Empty: the parameters below at their defaults (an ideal robot: 360-degree laser, short "
+                      "beams, exact poses, a static world). `realistic`: every parameter not set explicitly takes "
+                      "its *realistic* value (a 270-degree 30 m scanner with range noise growing with distance, "
+                      "glass, people, doors that open and shut, the pose error of a SLAM).")
+    n_beams: int = _p(360, "Laser beams over a full turn (the ones within `~fov` are cast).")
+    fov: float = _p(360.0, "Laser field of view, centred on the heading (common scanners: 180 or 270).", 'deg',
+                    realistic=270.0)
+    max_range: float = _p(5.0, "Laser range: beams reaching no wall within it give no return.", 'm',
+                          realistic=30.0)
+    range_noise: float = _p(0.01, "Standard deviation of the Gaussian range noise (at range 0).", 'm')
+    range_noise_per_m: float = _p(0.0, "Growth of the range noise's standard deviation per metre of range.", 'm/m',
+                                  realistic=0.0015)
+    clear_no_return: bool = _p(True, "Beams with no return (nothing within `~max_range`, glass) mark free space "
+                               "up to `~max_range` in the map; false: they mark nothing, as gmapping.",
+                               realistic=False)
+    glass_panes: int = _p(0, "Panes of glass (0.8-2 m) in interior walls of the world: they stop robots, but "
+                          "return a beam only within 10 degrees of their normal.", realistic=4)
+    people: int = _p(0, "People walking (discs of 0.25 m at 0.8 m/s between random places): the laser sees them, "
+                     "so they show in the maps until later scans clear them; robots pass through them.",
+                     realistic=3)
+    door_changes: float = _p(0.0, "Share of the generated floor plan's doors that open and shut while the robots "
+                             "explore (a shut door stops robots and beams; it never shuts on a robot).",
+                             realistic=0.5)
+    door_period: float = _p(120.0, "Mean time a changing door stays open, or shut.", 's')
+    drift_yaw: float = _p(0.0, "Heading error the SLAM's scan matching leaves per metre driven (a random walk: "
+                          "after d metres its standard deviation is drift_yaw * sqrt(d)); the pose on TF and the "
+                          "map are the robot's belief, its error grows from 0 at the start pose.", 'deg/√m',
+                          realistic=0.05)
+    drift_xy: float = _p(0.0, "Position error left per metre driven, per axis (random walk, as `~drift_yaw`).",
+                         'm/√m', realistic=0.005)
+    loop_closure_path: float = _p(10.0, "With drift: a robot back within 1 m of a place it passed this much path "
+                                  "ago closes a loop: its belief jumps back to the error it had there (a visible "
+                                  "jump on TF), and its later scans fit the map it drew there.", 'm')
     scan_rate: float = _p(5.0, "Laser scans fused into the maps per second (sim time).", 'Hz')
     map_rate: float = _p(1.0, "Full `<ns>/map` publications per second (sim time), skipped while the map has not "
                          "changed (it is latched); a grown map is published at the next update instead.", 'Hz')
@@ -80,6 +124,11 @@ class FleetSimParams:
         if self.robots is None:
             object.__setattr__(self, 'robots', [])
 
+    @property
+    def drift(self) -> bool:
+        """The robots' believed poses differ from the true ones."""
+        return self.drift_yaw > 0.0 or self.drift_xy > 0.0
+
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         """Raise ParamError for values the simulator cannot run with."""
@@ -92,7 +141,19 @@ class FleetSimParams:
         for name in positive:
             if getattr(self, name) <= 0.0:   # rates: no zero-period timers
                 raise ParamError(f"~{name} must be positive, got {getattr(self, name)}")
-        for name in ('robot_radius', 'range_noise', 'goal_tolerance'):
+        if self.profile not in PROFILES:
+            raise ParamError(f"~profile must be one of {sorted(PROFILES)}, got {self.profile!r}")
+        if not 0.0 < self.fov <= 360.0:
+            raise ParamError(f"~fov must be in (0, 360] degrees, got {self.fov}")
+        if not 0.0 <= self.door_changes <= 1.0:
+            raise ParamError(f"~door_changes must be in 0..1, got {self.door_changes}")
+        for name in ('glass_panes', 'people'):
+            if not 0 <= getattr(self, name) <= 1000:
+                raise ParamError(f"~{name} must be in 0..1000, got {getattr(self, name)}")
+        for name in ('door_period', 'loop_closure_path'):
+            if getattr(self, name) <= 0.0:
+                raise ParamError(f"~{name} must be positive, got {getattr(self, name)}")
+        for name in ('robot_radius', 'range_noise', 'goal_tolerance', 'range_noise_per_m', 'drift_yaw', 'drift_xy'):
             if getattr(self, name) < 0.0:
                 raise ParamError(f"~{name} must not be negative, got {getattr(self, name)}")
         if self.n_beams < 1 or self.n_beams > 100000:
@@ -142,6 +203,10 @@ class FleetSimParams:
         ignored (other tools may keep parameters there). A float parameter also accepts an int."""
         if not isinstance(values, Mapping):
             values = {}
+        profile = values.get('profile', '')
+        if profile not in PROFILES:
+            raise ParamError(f"~profile must be one of {sorted(PROFILES)}, got {profile!r}")
+        values = {**PROFILES[profile], **values}    # explicit values win over the profile's
         kwargs = {}
         for f in fields(cls):
             if f.name not in values:
@@ -158,6 +223,11 @@ class FleetSimParams:
         params = cls(**kwargs)
         params.validate()
         return params
+
+
+REALISTIC.update({f.name: f.metadata['realistic'] for f in fields(FleetSimParams)
+                  if f.metadata.get('realistic') is not None})
+PROFILES: Dict[str, Dict[str, Any]] = {'': {}, 'realistic': REALISTIC}
 
 
 def describe() -> List[ParamDoc]:

@@ -1,8 +1,9 @@
 """One simulated robot: true pose in the world, laser + log-odds map in its own map frame, and a move_base stand-in
 (plan on the own map, drive, re-plan, succeed / abort). Pure Python, driven by fleet_sim.sim in fixed sim steps.
 
-The map frame's origin is the robot's start pose (as a SLAM package's map frame), so the map-frame pose is the true
-pose seen from the start pose; there is no odometry drift, so maps are exact up to the laser noise.
+The map frame's origin is the robot's start pose (as a SLAM package's map frame). Without drift the map-frame pose
+is the true pose seen from the start pose, so maps are exact up to the laser noise; with drift (fleet_sim.drift)
+the map-frame pose, on TF and where scans are fused, is the SLAM's belief, and the robot drives by it.
 """
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from .laser import beam_angles, cast
+from .drift import SlamDrift
+from .laser import add_noise, beam_angles, cast, glass_no_return
 from .mapping import LogOddsMap, compose, relative_pose
 from .motion import Clearance, FollowerConfig, PathFollower, path_blocked_index, step_with_collision
 from .planner import PlannerConfig, PlanResult, plan_path
@@ -38,6 +40,9 @@ class RobotConfig:
     stuck_timeout: float = 5.0
     linear_speed: float = 0.5
     angular_speed: float = 1.5
+    fov_deg: float = 360.0
+    range_noise_per_m: float = 0.0
+    clear_no_return: bool = True
 
 
 @dataclass
@@ -50,7 +55,9 @@ class Outcome:
 class SimRobot:
     def __init__(self, ns: str, start: Sequence[float], world_occ: np.ndarray, world_res: float,
                  world_origin: Sequence[float], clearance: Clearance, cfg: RobotConfig,
-                 rng: np.random.Generator) -> None:
+                 rng: np.random.Generator, drift: Optional[SlamDrift] = None,
+                 glass: Optional[np.ndarray] = None) -> None:
+        """drift: the SLAM's pose error (None: exact poses); glass: world cells of glass (None: no glass)."""
         self.ns = ns
         self.start: Pose = (float(start[0]), float(start[1]), float(start[2]))
         self.pose: Pose = self.start                     # true pose in the world frame
@@ -60,7 +67,10 @@ class SimRobot:
         self._clear = clearance
         self._rng = rng
         self.mapper = LogOddsMap(cfg.resolution, line_sampling=True)
+        self.drift, self._glass = drift, glass
         self.angles = beam_angles(cfg.n_beams)
+        if cfg.fov_deg < 360.0:
+            self.angles = self.angles[np.abs(self.angles) <= math.radians(cfg.fov_deg) / 2.0 + 1e-9]
         self.ranges: Optional[np.ndarray] = None        # last scan
         self._scan_pose: Optional[Pose] = None
         self.planner_cfg = PlannerConfig(robot_radius=cfg.robot_radius, goal_tolerance=cfg.goal_tolerance)
@@ -77,12 +87,26 @@ class SimRobot:
 
     # ------------------------------------------------------------------ frames
     @property
-    def pose_map(self) -> Pose:
-        """True pose in the robot's own map frame (what TF map -> base_link carries)."""
+    def true_pose_map(self) -> Pose:
+        """True pose in the robot's own map frame."""
         return relative_pose(self.start, self.pose)
 
+    @property
+    def pose_map(self) -> Pose:
+        """Believed pose in the robot's own map frame (what TF map -> base_link carries; without drift the true
+        one)."""
+        if self.drift is None:
+            return relative_pose(self.start, self.pose)
+        return self.drift.believed(relative_pose(self.start, self.pose))
+
     def to_world(self, p: Sequence[float]) -> Pose:
-        return compose(self.start, (p[0], p[1], p[2] if len(p) > 2 else 0.0))
+        """World pose of a point of the map frame (where the robot believes it is)."""
+        p = (p[0], p[1], p[2] if len(p) > 2 else 0.0)
+        return compose(self.start, p if self.drift is None else self.drift.to_true(p))
+
+    def set_world(self, world_occ: np.ndarray, clearance: Clearance) -> None:
+        """What blocks beams and robots now (doors shut, people walking)."""
+        self._occ, self._clear = world_occ, clearance
 
     # ------------------------------------------------------------------ sensing
     def scan(self, force: bool = False) -> bool:
@@ -92,9 +116,15 @@ class SimRobot:
             return False
         cfg = self.cfg
         origin = self._world_origin
-        self.ranges = cast(self._occ, self._world_res, self.pose, cfg.n_beams, cfg.max_range, self._rng,
-                           sigma=cfg.range_noise, origin=origin)
-        self.mapper.integrate(self.pose_map, self.ranges, self.angles, cfg.max_range)
+        ranges = cast(self._occ, self._world_res, self.pose, cfg.n_beams, cfg.max_range, angles=self.angles,
+                      origin=origin)
+        if self._glass is not None:
+            glass_no_return(ranges, self.angles, self.pose, self._glass, self._world_res, origin)
+        self.ranges = add_noise(ranges, self._rng, cfg.range_noise, sigma_per_m=cfg.range_noise_per_m)
+        if self.drift is not None:     # scan matching first: a loop may close here
+            self.drift.scanned(self.true_pose_map)
+        self.mapper.integrate(self.pose_map, self.ranges, self.angles, cfg.max_range,
+                              clear_no_return=cfg.clear_no_return)
         self._scan_pose = self.pose
         if self.state == ACTIVE and self.follower is not None:
             self._check_path()
@@ -180,6 +210,8 @@ class SimRobot:
             return None
         v, w = f.command(pm, dt, self._line_free)
         new, _blocked = step_with_collision(self.pose, v, w, dt, self._clear, self.cfg.robot_radius)
+        if self.drift is not None:
+            self.drift.moved(relative_pose(self.start, self.pose), relative_pose(self.start, new))
         self.pose = new
         return None
 

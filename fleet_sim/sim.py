@@ -17,9 +17,11 @@ from multirobot_map_merge.admission import clean_cells
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import MapFileError
 
+from .drift import SlamDrift
 from .motion import Clearance
 from .params import FleetSimParams, ParamError, RobotSpec
 from .robot import Outcome, RobotConfig, SimRobot
+from .scenery import Doors, People, glass_mask
 from .world import load_world, make_floor_plan, obstacle_mask
 
 _log = logging.getLogger('rosout.fleet_sim.sim')
@@ -94,10 +96,26 @@ class FleetSim:
         cfg = RobotConfig(n_beams=params.n_beams, max_range=params.max_range, range_noise=params.range_noise,
                           resolution=params.resolution, robot_radius=params.robot_radius,
                           goal_tolerance=params.goal_tolerance, stuck_timeout=params.stuck_timeout,
-                          linear_speed=params.linear_speed, angular_speed=params.angular_speed)
+                          linear_speed=params.linear_speed, angular_speed=params.angular_speed,
+                          fov_deg=params.fov, range_noise_per_m=params.range_noise_per_m,
+                          clear_no_return=params.clear_no_return)
+        # the realistic scenery, each from a random stream of its own (the default runs draw nothing new)
+        self.occ = occ
+        self.glass = glass_mask(self.world, occ, np.random.default_rng([params.seed, 0, 1]), params.glass_panes) \
+            if params.glass_panes else None
+        self.doors = Doors(self.world, occ, np.random.default_rng([params.seed, 0, 2]), params.door_changes,
+                           params.door_period) if params.door_changes > 0.0 else None
+        try:
+            self.people = People(self.clearance, np.random.default_rng([params.seed, 0, 3]), params.people) \
+                if params.people else None
+        except ValueError as e:
+            raise ParamError(f"~people: {e}") from None
         self.robots: List[SimRobot] = [
             SimRobot(s.ns, (s.x, s.y, s.yaw), occ, self.world.resolution, self.world.origin, self.clearance, cfg,
-                     np.random.default_rng([params.seed, i + 1]))
+                     np.random.default_rng([params.seed, i + 1]),
+                     drift=SlamDrift(np.random.default_rng([params.seed, i + 1, 1]), params.drift_yaw,
+                                     params.drift_xy, params.loop_closure_path, s.ns) if params.drift else None,
+                     glass=self.glass)
             for i, s in enumerate(specs)]
         self.specs: List[RobotSpec] = specs
         self.t = 0.0            # sim seconds since start
@@ -107,6 +125,7 @@ class FleetSim:
         self._map = _Every(params.map_rate)
         self._tf = _Every(params.tf_rate)
         # first scan at t = 0 so every robot has a map before anything is published
+        self._update_scenery()
         for r in self.robots:
             r.scan(force=True)
         self._scan.due(0.0)
@@ -121,14 +140,33 @@ class FleetSim:
             o = r.step(dt, self.t)
             if o is not None:
                 outcomes.append((i, o))
+        if self.people is not None:
+            self.people.step(dt)
         due = Due()
         due.scan = self._scan.due(self.t)
         if due.scan:
+            self._update_scenery()
             due.scanned = [i for i, r in enumerate(self.robots) if r.scan()]
         due.update = self._update.due(self.t)
         due.map = self._map.due(self.t)
         due.tf = self._tf.due(self.t)
         return due, outcomes
+
+    def _update_scenery(self) -> None:
+        """Doors that fall due open or shut (robots then collide with the shut ones), and what the lasers see now:
+        the walls, the shut doors and the people."""
+        if self.doors is None and self.people is None:
+            return
+        robots_xy = [r.pose[:2] for r in self.robots]
+        if self.doors is not None and self.doors.update(self.t, robots_xy):
+            self.occ = self.doors.blocked()
+            self.clearance = Clearance(self.world, self.occ)
+        seen = self.occ
+        if self.people is not None:
+            self.people.clear = self.clearance
+            seen = self.people.draw(self.occ, self.world, robots_xy, self.params.robot_radius + 0.05)
+        for r in self.robots:
+            r.set_world(seen, self.clearance)
 
     def set_goal(self, i: int, x: float, y: float) -> Optional[Outcome]:
         return self.robots[i].set_goal(x, y, self.t)

@@ -15,6 +15,8 @@
 #   --seed S            start poses and laser noise (default 0)
 #   --speedup X         sim time / real time (default 5; 2 for more than 6 robots, which 2 cores sustain)
 #   --no-coordination   explorers ignore each other (plain explore_lite behaviour)
+#   --realistic         robots as real ones: fleet_sim's realistic profile (270-degree 30 m laser with range noise,
+#                       glass, people walking, doors that open and shut, SLAM pose drift with loop closures)
 #   --limit-sim S       give up after S s of sim time (default 1200)
 #   --limit-wall S      give up after S s of real time (default 240; 900 for more than 6 robots)
 #   --out DIR           output directory (default out/demo)
@@ -29,9 +31,9 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # shellcheck disable=SC2048,SC2086
 set -- $*
 
-robots=3 world="" world_seed=0 seed=0 speedup="" coordinate=true limit_sim=1200 limit_wall=""
+robots=3 world="" world_seed=0 seed=0 speedup="" coordinate=true realistic=false limit_sim=1200 limit_wall=""
 out="$repo/out/demo" offline="" scenario=three_robots record=""
-usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,26p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 need() { [ $# -ge 2 ] && [ -n "$2" ] || { echo "demo: $1 needs a value" >&2; exit 2; }; }
 while [ $# -gt 0 ]; do
   opt=$1 val=""
@@ -43,6 +45,7 @@ while [ $# -gt 0 ]; do
     --seed) need "$@"; seed=$2; shift;;
     --speedup) need "$@"; speedup=$2; shift;;
     --no-coordination) coordinate=false;;
+    --realistic) realistic=true;;
     --limit-sim) need "$@"; limit_sim=$2; shift;;
     --limit-wall) need "$@"; limit_wall=$2; shift;;
     --out) need "$@"; out=$2; shift;;
@@ -83,7 +86,7 @@ export ROS_MASTER_URI="http://127.0.0.1:$port"
 export ROS_HOSTNAME=127.0.0.1
 rm -f "$out/summary.txt" "$out/summary.json"
 echo "demo: $robots robots, world ${world:-generated (seed $world_seed)}, seed $seed, speed-up $speedup," \
-     "coordination $coordinate; log in $out/roslaunch.log"
+     "coordination $coordinate$([ "$realistic" = true ] && echo ', realistic robots'); log in $out/roslaunch.log"
 set +e
 rec_pid="" core_pid=""
 stop_recorder() {   # also on Ctrl-C or an error: no recorder or master of ours is left running
@@ -114,7 +117,7 @@ fi
 # Hard stop a little after the supervisor's own real-time limit, whatever happens.
 timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall') + 40))")" \
   roslaunch -p "$port" multirobot_map_merge demo.launch num_robots:="$robots" world:="$world" \
-    world_seed:="$world_seed" seed:="$seed" speedup:="$speedup" coordinate:="$coordinate" out:="$out" \
+    world_seed:="$world_seed" seed:="$seed" speedup:="$speedup" coordinate:="$coordinate" realistic:="$realistic" out:="$out" \
     limit_sim:="$limit_sim" limit_wall:="$limit_wall" 2>&1 \
   | tee "$out/roslaunch.log" | grep --line-buffered -E '^\[demo\]|^demo:|has died|FATAL|ERROR|Traceback' \
   | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'

@@ -22,12 +22,18 @@ PlacementTimeline: placement_timeline in summary.json holds how long the merge w
 (start of the stretch in the merged map that lasts until the end) and latency_s; `progress` holds the progress
 lines (sim s, real s, explored share, robots merged and joinable) for the fleet benchmark (bench/bench_fleet.py).
 
-Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup (for the summary),
+With realistic robots (fleet_sim's drift), the summary also gives each robot's SLAM pose error at the end (its pose
+on TF, <ns>/map -> <ns>/base_link, against the true pose seen from its start pose) and its loop closures (from
+fleet_sim's log).
+
+Params: ~num_robots (robots robot_1..robot_N), ~out, ~limit_sim, ~limit_wall, ~speedup and ~realistic (fleet_sim's
+realistic profile; both for the summary),
 ~merged_topic, ~status_topic, ~world_topic (default /fleet_sim/world_map).
 """
 import json
 import math
 import os
+import re
 import sys
 import threading
 import time
@@ -35,6 +41,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import rospy
+import tf2_ros
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid
 from rosgraph_msgs.msg import Log
@@ -43,6 +50,7 @@ from rospy.numpy_msg import numpy_msg
 from explore.coverage import (KnownRaster, PlacementTimeline, explored_share, placement_errors, reachable_mask,
                              truth_from_estimate)
 from explore.merge_latency import LatencyTracker, joinable_robots
+from fleet_sim.mapping import relative_pose
 from multirobot_map_merge.grid import Grid, GridError
 from multirobot_map_merge.mapio import save_map, save_png
 from multirobot_map_merge.msg import MergeStatus
@@ -61,6 +69,7 @@ def _pose(msg: PoseStamped) -> Pose:
 
 
 SETTLE_WAIT_S = 60.0   # wall s the end waits at most for the merged map and map_merge's last estimations
+LOOP_CLOSED = re.compile(r'^(\S+): loop closed after .* jumped ([0-9.]+) cm, ([0-9.]+) deg')
 QUIET_S = 3.0          # wall s without a new status (plus two estimation periods): map_merge has settled
 
 
@@ -72,6 +81,7 @@ class Supervisor:
         self.limit_sim = float(rospy.get_param('~limit_sim', 1200.0))
         self.limit_wall = float(rospy.get_param('~limit_wall', 240.0))
         self.speedup = float(rospy.get_param('~speedup', 1.0))
+        self.realistic = bool(rospy.get_param('~realistic', False))
         self.estimation_rate = float(rospy.get_param('/map_merge/map_merge/estimation_rate', 0.5))
         self.lock = threading.Lock()   # owns everything below, written by the callbacks
         self.world: Optional[Grid] = None
@@ -83,6 +93,10 @@ class Supervisor:
         self.status_at = 0.0           # wall time the newest status arrived
         self.longest_estimation = 0.0  # wall s, the longest estimation_time of a status
         self.stopped: set = set()
+        self.true_poses: Dict[str, Pose] = {}
+        self.closures: Dict[str, List[Tuple[float, float]]] = {n: [] for n in self.names}   # (cm, deg) jumps
+        self.tf = tf2_ros.Buffer() if self.realistic else None
+        self._tf_listener = tf2_ros.TransformListener(self.tf) if self.tf is not None else None
         self.reach: Optional[np.ndarray] = None
         self.latency = LatencyTracker(self.names)
         self.timeline = PlacementTimeline()   # main loop only, as the two below
@@ -93,6 +107,8 @@ class Supervisor:
                          queue_size=1, buff_size=1 << 24)
         for name in self.names:
             rospy.Subscriber(f'/{name}/ground_truth/start_pose', PoseStamped, self.on_start, callback_args=name)
+            if self.realistic:
+                rospy.Subscriber(f'/{name}/ground_truth/pose', PoseStamped, self.on_true_pose, callback_args=name)
             rospy.Subscriber(f'/{name}/map', GridMsg, self.on_map, callback_args=name, queue_size=1,
                              buff_size=1 << 24)
         rospy.Subscriber(rospy.get_param('~status_topic', '/map_merge/map_merge/status'), MergeStatus,
@@ -119,6 +135,10 @@ class Supervisor:
             self.starts[name] = _pose(msg)
             self.reach = None
 
+    def on_true_pose(self, msg, name):
+        with self.lock:
+            self.true_poses[name] = _pose(msg)
+
     def on_map(self, msg, name):
         grid = self._grid(msg)
         if grid is not None:
@@ -139,6 +159,10 @@ class Supervisor:
                 self.merged, self.merged_at = grid, time.monotonic()
 
     def on_log(self, msg):
+        closed = LOOP_CLOSED.match(msg.msg) if msg.name == '/fleet_sim' else None
+        if closed and closed.group(1) in self.closures:
+            with self.lock:
+                self.closures[closed.group(1)].append((float(closed.group(2)), float(closed.group(3))))
         if msg.msg.startswith('Exploration stopped.'):
             for name in self.names:
                 if msg.name == f'/{name}/explore':
@@ -206,6 +230,29 @@ class Supervisor:
         self._scored = status
         self.timeline.add(status.header.stamp.to_sec() or rospy.get_time(),
                           placement_errors(self.estimated(status), starts, maps))
+
+    def slam_errors(self) -> Dict[str, dict]:
+        """Per robot: its pose on TF (the SLAM's belief) against its true pose seen from its start pose, and its
+        loop closures."""
+        out = {}
+        for n in self.names:
+            with self.lock:
+                start, true, closures = self.starts.get(n), self.true_poses.get(n), list(self.closures[n])
+            row = {'loop_closures': len(closures),
+                   'largest_jump_cm': max((c[0] for c in closures), default=None)}
+            try:
+                t = self.tf.lookup_transform(f'{n}/map', f'{n}/base_link', rospy.Time(0), rospy.Duration(1.0))
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
+                t = None
+            if start is not None and true is not None and t is not None:
+                q = t.transform.rotation
+                belief = (t.transform.translation.x, t.transform.translation.y,
+                          yaw_from_quaternion(q.x, q.y, q.z, q.w))
+                truth = relative_pose(start, true)
+                row['slam_error_cm'] = 100 * math.hypot(belief[0] - truth[0], belief[1] - truth[1])
+                row['slam_error_deg'] = abs(math.degrees(math.remainder(belief[2] - truth[2], 2 * math.pi)))
+            out[n] = row
+        return out
 
     def merged_share(self, truth_from_merged: Optional[Pose]) -> Optional[float]:
         with self.lock:
@@ -276,6 +323,10 @@ class Supervisor:
             latency = {r['robot']: r for r in self.latency.rows()}
         for r in rows:
             r.update({k: v for k, v in latency[r['robot']].items() if k != 'robot'})
+        if self.realistic:
+            slam = self.slam_errors()
+            for r in rows:
+                r.update(slam[r['robot']])
         merged_share = self.merged_share(truth_from_merged)
         os.makedirs(self.out, exist_ok=True)
         files = {}
@@ -297,11 +348,13 @@ class Supervisor:
                     included_poses(status),
                     [(p.robot_a.strip('/'), p.robot_b.strip('/'), p.confidence) for p in status.pairs if p.used])
         summary = {'end': reason, 'sim_time_s': sim, 'real_time_s': wall, 'speedup': self.speedup,
+                   'realistic': self.realistic,
                    'robots': len(self.names), 'explored_share': share, 'merged_map_share': merged_share,
                    'placement': rows, 'placement_timeline': timeline, 'files': files, 'progress': self.progress,
                    # ground-truth start poses (x, y, yaw in the world): with robots/*.yaml, a merge replays offline
                    'start_poses': {name: list(pose) for name, pose in sorted(self.starts.items())}}
-        lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g})',
+        lines = [f'demo: {reason} after {sim:.1f} s of sim time ({wall:.1f} s real, speed-up {self.speedup:g}'
+                 + (', realistic robots)' if self.realistic else ')'),
                  f"demo: explored {_pct(share)} of the reachable area (the robots' maps at their "
                  f"true poses); the merged map covers {_pct(merged_share)}",
                  f"demo: map_merge placed {sum(r['included'] for r in rows)} of {len(rows)} robots without known "
@@ -313,6 +366,14 @@ class Supervisor:
                              + (' (reference)' if r['robot'] == r['reference'] else ''))
             else:
                 lines.append(f"demo:   {r['robot']}: not in the merged map")
+        if self.realistic:
+            lines.append("demo: the robots' SLAM pose error at the end (TF against the truth, in each map frame) and "
+                         "loop closures:")
+            for r in rows:
+                error = f"{r['slam_error_cm']:.1f} cm, {r['slam_error_deg']:.2f} deg" if 'slam_error_cm' in r \
+                    else 'n/a'
+                jump = '' if r['largest_jump_cm'] is None else f", largest jump {r['largest_jump_cm']:.1f} cm"
+                lines.append(f"demo:   {r['robot']}: {error}; {r['loop_closures']} loop closures{jump}")
         lines.append(f"demo: while it ran, the merge was off by more than {timeline['degrees']:g} deg or "
                      f"{timeline['cm']:g} cm for {timeline['off_s']:.1f} of {timeline['span_s']:.1f} sim s (worst "
                      f"{timeline['worst_cm']:.1f} cm, {timeline['worst_deg']:.2f} deg)")
