@@ -25,6 +25,8 @@ if TYPE_CHECKING:
 
 FOUND_AGREEMENT = 0.6   # see overlap_found
 SAME_PLACE_PX = 1.0     # placements that move no corner of grid i further apart than this are one estimate
+RING_PX = 3               # pixels around a contradicting piece that tell whether its map saw it amid free floor
+MOVABLE_FREE_SHARE = 0.75  # of that ring free: a wall face has its unknown behind it (about half)
 
 
 @dataclass
@@ -35,7 +37,10 @@ class AcceptanceSettings:
     min_overlap_m2: float = 4.0       # common known area a pair needs
     min_support: int = 100            # agreeing wall pixels a pair needs
     deep_conflict_m: float = 0.2      # a contradicting wall this far inside the other map's view is not at its fringe
-    max_deep_conflicts: float = 0.01  # such contradictions a pair tolerates, as a share of its agreeing walls
+    max_deep_conflicts: float = 0.01  # structural ones a pair tolerates, as a share of its agreeing walls
+    movable_size_m: float = 1.0       # a deep contradiction no longer than this (a person, a chair, a door leaf) is
+                                      # what moves between two passes of a real building, not a misplaced wall
+    max_movable_conflicts: float = 0.05  # those a pair tolerates, as a share of its agreeing walls
     max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
     fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
     conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
@@ -47,7 +52,8 @@ class AcceptanceSettings:
         must_be_positive(self, 'verify_tolerance')
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
-        must_not_be_negative(self, 'deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m')
+        must_not_be_negative(self, 'deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m',
+                             'movable_size_m', 'max_movable_conflicts')
         if self.confidence != self.confidence:
             raise ValueError('confidence must be a number, not NaN')
 
@@ -62,6 +68,7 @@ class Placement:
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
     deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
+    movable_conflicts: int = 0  # of those, the ones in small pieces (movable_size_m): moved objects, not structure
     fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
     corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
 
@@ -154,25 +161,66 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     result.support = support
     result.conflicts = n_i + n_j - support - neutral
     # how deep inside the other map's view each contradicting wall lies
-    depth = [pj.known_depth[r0:r1, c0:c1][walls_i & ~near_j]]
+    deep_px = s.deep_conflict_m / pi.resolution
+    conflicts_i = walls_i & ~near_j
+    depth_i = pj.known_depth[r0:r1, c0:c1][conflicts_i]
+    deep_i = conflicts_i & (pj.known_depth[r0:r1, c0:c1] > deep_px)
+    deep_j = np.zeros_like(deep_i)
     rows, cols = np.nonzero(walls_j & ~near_i)
+    depth_j = np.zeros(0, np.float32)
     if rows.size:
         # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
         x, y, inside = source_pixels(pi, model, cols + c0, rows + r0)
-        depth.append(pi.known_depth[y[inside], x[inside]])
-    depth = np.concatenate(depth)
-    result.deep_conflicts = int((depth > s.deep_conflict_m / pi.resolution).sum())
+        depth_j = pi.known_depth[y[inside], x[inside]]
+        deep_j[rows[inside][depth_j > deep_px], cols[inside][depth_j > deep_px]] = True
+    depth = np.concatenate([depth_i, depth_j])
+    result.deep_conflicts = int((depth > deep_px).sum())
+    if result.deep_conflicts:
+        size_px = s.movable_size_m / pi.resolution
+        result.movable_conflicts = movable_pixels(deep_i, wi, size_px) + movable_pixels(deep_j, wj, size_px)
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
     return result
 
 
+def movable_pixels(deep: np.ndarray, grid: np.ndarray, size_px: float, ring_px: int = RING_PX) -> int:
+    """How many of one map's contradicting wall pixels `deep` lie in small pieces that this map (`grid`, the same
+    pixels) saw with free space all around: things that move.
+
+    Between two passes of a real building people walk and chairs and carts move: one map has a small blob where
+    the other saw free floor, and it saw free floor around the blob. A wrong placement instead puts walls where the
+    other map saw floor, long ones, or short pieces of wall faces with the unknown behind them (glimpsed through a
+    door); neither is free all around. Pieces a pixel apart count as one.
+    """
+    joined = cv2.dilate(deep.view(np.uint8), np.ones((3, 3), np.uint8))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    # the joined piece's box less the pixel the dilation added on each side: its extent, a line's length
+    extent = np.hypot(stats[:, cv2.CC_STAT_WIDTH] - 2, stats[:, cv2.CC_STAT_HEIGHT] - 2)
+    # a ring around each piece (where two rings meet, the larger label takes it: pieces are far apart)
+    around = cv2.dilate(labels.astype(np.float32), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(np.int64)
+    around[joined > 0] = 0
+    ring = np.bincount(around.ravel(), minlength=count)
+    free = np.bincount(around.ravel(), weights=(grid == 0).ravel(), minlength=count)
+    movable = (extent <= size_px) & (free >= MOVABLE_FREE_SHARE * np.maximum(ring, 1))
+    movable[0] = False   # the background
+    return int(movable[labels[deep]].sum())
+
+
 def plausible(c: Placement, s: EstimationSettings) -> bool:
     """Agrees well over a common area large enough to mean something, and (almost) everywhere well inside both
     maps' views."""
     return (c.agreement >= s.min_agreement and c.overlap_m2 >= s.min_overlap_m2 and c.support >= s.min_support
-            and c.deep_conflicts <= s.max_deep_conflicts * c.support)
+            and not too_contradicted(c, s))
+
+
+def too_contradicted(c: Placement, s: EstimationSettings) -> bool:
+    """Whether the walls that contradict well inside both maps' views say the placement is wrong: more structure
+    (long pieces of wall) than max_deep_conflicts of the agreeing walls, or more small movable pieces than
+    max_movable_conflicts (a little clutter moved between passes; a building full of it is no evidence)."""
+    structural = c.deep_conflicts - c.movable_conflicts
+    return (structural > s.max_deep_conflicts * c.support
+            or c.movable_conflicts > s.max_movable_conflicts * c.support)
 
 
 def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings, onto_union: bool = False) -> str:
@@ -185,9 +233,10 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
         return f'overlap {c.overlap_m2:.1f} m2 < {s.min_overlap_m2:.1f} m2'
     if c.support < s.min_support:
         return f'support {c.support} < {s.min_support}'
-    if c.deep_conflicts > s.max_deep_conflicts * c.support:
-        return (f'{c.deep_conflicts} contradicting walls well inside both maps, more than '
-                f'{s.max_deep_conflicts:.0%} of {c.support} agreeing')
+    if too_contradicted(c, s):
+        return (f'{c.deep_conflicts} contradicting walls well inside both maps ({c.movable_conflicts} in pieces of '
+                f'{s.movable_size_m:.1f} m or less), more than {s.max_deep_conflicts:.0%} (small pieces '
+                f'{s.max_movable_conflicts:.0%}) of {c.support} agreeing')
     c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
     if c.corner_error_m > s.max_corner_error_m:
         return (f'imprecise: the shared walls leave the far corners uncertain by '
@@ -218,7 +267,7 @@ def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: boo
     and agrees mostly (a broken map fits the union in part). Then a search would find the same placement."""
     if c is None:
         return False
-    return (plausible(c, s.replace(max_deep_conflicts=math.inf))
+    return (plausible(c, s.replace(max_deep_conflicts=math.inf, max_movable_conflicts=math.inf))
             or (onto_union and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2
                 and c.agreement >= FOUND_AGREEMENT))
 
