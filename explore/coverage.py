@@ -136,6 +136,48 @@ def placement_errors(estimated: Mapping[str, Pose], truth: Mapping[str, Pose],
     return rows
 
 
+def wall_fit(maps: Mapping[str, Grid], poses: Mapping[str, Pose], name: str,
+             near_m: float = 0.5, close_m: float = 0.075) -> Tuple[int, int]:
+    """(near, close): of robot ``name``'s wall cells placed by ``poses``, those with a wall of another placed robot
+    map within ``near_m``, and of those, within ``close_m``: how well its walls fit the others' at these poses."""
+    def walls(n: str) -> np.ndarray:
+        rows, cols = np.nonzero(maps[n].data >= 65)
+        return tf.apply(tf.rigid(*poses[n]) @ maps[n].cell_to_map(), np.column_stack([cols, rows]).astype(float))
+    others = [walls(n) for n in poses if n != name and n in maps]
+    if name not in maps or name not in poses or not others:
+        return 0, 0
+    theirs, mine = np.vstack(others), walls(name)
+    if not len(theirs) or not len(mine):
+        return 0, 0
+    cell = min(maps[name].resolution, close_m)
+    lo = np.minimum(theirs.min(axis=0), mine.min(axis=0)) - 2 * near_m
+    size = np.ceil((np.maximum(theirs.max(axis=0), mine.max(axis=0)) + 2 * near_m - lo) / cell).astype(int) + 1
+    raster = np.full((size[1], size[0]), 255, np.uint8)
+    ij = np.floor((theirs - lo) / cell).astype(int)
+    raster[ij[:, 1], ij[:, 0]] = 0
+    distance = cv2.distanceTransform(raster, cv2.DIST_L2, 3) * cell
+    ij = np.floor((mine - lo) / cell).astype(int)
+    d = distance[ij[:, 1], ij[:, 0]]
+    near = d <= near_m
+    return int(near.sum()), int((d[near] <= close_m).sum())
+
+
+def right_by_the_data(row: Mapping[str, object], estimated: Mapping[str, Pose], truth: Mapping[str, Pose],
+                      maps: Mapping[str, Grid], degrees: float = 1.0, metres: float = 0.5,
+                      share: float = 0.95) -> Tuple[bool, Tuple[int, int], Tuple[int, int]]:
+    """Whether a placement the strict errors call off is right by the maps themselves, as ../shared/eval's
+    score_real judges real maps: a robot's own map drifts (SLAM), so its start pose is not where its walls fit
+    best. Within ``degrees`` and ``metres`` of the truth (tighter than score_real's 2 degrees and 1.5 m: next to a
+    start pose that fits poorly, a placement a degree and a half off can fit as well), and its walls fit the other
+    placed maps at least ``share`` as well as at the true poses. Returns (verdict, fit at the placements, fit at
+    the true poses)."""
+    name = str(row['robot'])
+    placed = wall_fit(maps, estimated, name)
+    true = wall_fit(maps, {n: truth[n] for n in estimated if n in truth}, name)
+    close = float(row['rotation_error_deg']) <= degrees and float(row['corner_error_m']) <= metres
+    return close and placed[1] >= share * true[1], placed, true
+
+
 def truth_from_estimate(estimated: Mapping[str, Pose], truth: Mapping[str, Pose]) -> Optional[Pose]:
     """Pose of the merge's world frame in the ground-truth world, through the first robot of ``estimated``."""
     names = [n for n in estimated if n in truth]

@@ -152,3 +152,46 @@ def test_placement_timeline_counts_the_time_from_a_status_off_to_the_next():
     assert (summary['worst_cm'], summary['worst_cm_robot']) == (30.0, 'robot_1')
     assert (summary['worst_deg'], summary['worst_deg_robot']) == (1.2, 'robot_1')
     assert [t for t, _ in timeline.offs] == [12.0, 22.0]
+
+
+def walls_map(pose, world_walls, size_m=30.0):
+    """A robot map whose frame sits at ``pose`` in the world, with walls (occupied) where the world's wall
+    segments (x0, y0, x1, y1) fall and free floor elsewhere in a 12 m box around its frame."""
+    n = int(size_m / RES)
+    grid = Grid(np.full((n, n), -1, np.int8), RES, (-size_m / 2, -size_m / 2, 0.0), frame_id='m')
+    rows, cols = np.mgrid[0:n, 0:n]
+    inside = (np.abs(cols - n / 2) < 6 / RES) & (np.abs(rows - n / 2) < 6 / RES)
+    grid.data[inside] = 0
+    to_cells = np.linalg.inv(grid.cell_to_map()) @ tf.inverse(tf.rigid(*pose))
+    for x0, y0, x1, y1 in world_walls:
+        t = np.linspace(0.0, 1.0, int(math.hypot(x1 - x0, y1 - y0) / (RES / 2)) + 2)
+        pts = tf.apply(to_cells, np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)]))
+        c, r = np.floor(pts).astype(int).T
+        ok = (c >= 0) & (r >= 0) & (c < n) & (r < n)
+        grid.data[r[ok], c[ok]] = 100
+    return grid
+
+
+def test_a_drifted_map_placed_where_its_walls_fit_is_right_by_the_data():
+    """A SLAM map that drifted holds its walls 25 cm from where its start pose puts them: placed where they fit,
+    it is off by the strict errors but right by the data; turned by 1.5 degrees, it is neither."""
+    from explore.coverage import placement_errors, right_by_the_data
+    world = [(0, 0, 10, 0), (10, 0, 10, 6), (10, 6, 0, 6), (0, 6, 0, 0), (4, 0, 4, 2.5), (7, 6, 7, 4)]
+    a_pose, b_start = (2.0, 2.0, 0.3), (6.0, 3.0, -0.4)
+    b_content = (6.25, 3.1, -0.4)          # where b's walls really sit: its drift
+    maps = {'a': walls_map(a_pose, world), 'b': walls_map(b_content, world)}
+    truth = {'a': a_pose, 'b': b_start}
+    fitted = {'a': a_pose, 'b': b_content}
+    row = placement_errors(fitted, truth, maps)[1]
+    assert row['corner_error_m'] > 0.15
+    verdict, placed, true = right_by_the_data(row, fitted, truth, maps)
+    assert verdict and placed[1] > true[1], (placed, true)
+    # placements off the other way fit worse than the start pose, or are too far from it to be judged by the data
+    for wrong in ((5.8, 2.95, -0.4), (6.25, 3.1, -0.4 + math.radians(1.5)), (6.6, 3.3, -0.4)):
+        placed_at = {'a': a_pose, 'b': wrong}
+        row = placement_errors(placed_at, truth, maps)[1]
+        verdict, placed, true = right_by_the_data(row, placed_at, truth, maps)
+        assert not verdict, (wrong, placed, true)
+    verdict, placed, true = right_by_the_data(placement_errors({'a': a_pose, 'b': (5.8, 2.95, -0.4)}, truth, maps)[1],
+                                              {'a': a_pose, 'b': (5.8, 2.95, -0.4)}, truth, maps)
+    assert placed[1] < 0.95 * true[1], (placed, true)
