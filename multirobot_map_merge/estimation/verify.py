@@ -69,6 +69,7 @@ class Placement:
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
     deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
     movable_conflicts: int = 0  # of those, the ones in small pieces (movable_size_m): moved objects, not structure
+                                # (counted only where it decides: see verify)
     fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
     corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
 
@@ -175,7 +176,9 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         deep_j[rows[inside][depth_j > deep_px], cols[inside][depth_j > deep_px]] = True
     depth = np.concatenate([depth_i, depth_j])
     result.deep_conflicts = int((depth > deep_px).sum())
-    if result.deep_conflicts:
+    if s.max_deep_conflicts * support < result.deep_conflicts <= (s.max_deep_conflicts + s.max_movable_conflicts) \
+            * support:
+        # told apart only where it decides: below, the placement passes either way; above, it fails either way
         size_px = s.movable_size_m / pi.resolution
         result.movable_conflicts = movable_pixels(deep_i, wi, size_px) + movable_pixels(deep_j, wj, size_px)
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
@@ -193,6 +196,14 @@ def movable_pixels(deep: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     other map saw floor, long ones, or short pieces of wall faces with the unknown behind them (glimpsed through a
     door); neither is free all around. Pieces a pixel apart count as one.
     """
+    rows, cols = np.nonzero(deep)
+    if rows.size == 0:
+        return 0
+    # only around the contradicting pixels: the common area of a map and a union is large
+    margin = ring_px + 2
+    r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    deep, grid = deep[r0:rows.max() + margin + 1, c0:cols.max() + margin + 1], \
+        grid[r0:rows.max() + margin + 1, c0:cols.max() + margin + 1]
     joined = cv2.dilate(deep.view(np.uint8), np.ones((3, 3), np.uint8))
     count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
     # the joined piece's box less the pixel the dilation added on each side: its extent, a line's length
