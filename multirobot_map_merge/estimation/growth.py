@@ -13,6 +13,8 @@ their maps grow.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
 import time
 from concurrent.futures import Executor
 from typing import Callable, Dict, List, Optional, Sequence
@@ -26,12 +28,15 @@ from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
+from .eviction import contradicted_members
 from .tracking import MAX_PASSES, least_agreeing, recheck
-from .union import UnionMap
+from .union import UnionMap, footprint
 from .verify import overlap_found
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
+
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
 
 Progress = Callable[[int, int], None]   # (grids settled, grids in all), called as the estimation goes
 
@@ -70,6 +75,18 @@ class Group:
             if link.j == k:
                 self.links[m] = self.paired(link, m)
 
+    def reframe(self, seed: int) -> np.ndarray:
+        """Member `seed` becomes the group's seed, its frame the group's: every placement is restated in it (before
+        the old seed leaves). Returns the transform from the old frame to the new one."""
+        to_new = tf.inverse(self.members[seed])
+        old = self.union
+        self.union = UnionMap(old.resolution, old.keypoints_of)
+        for k, t in old.members.items():
+            self.union.add(k, old.grids[k], old.parts[k], to_new @ t)
+        self.union.version = old.version + 1   # what was tried against the old union counts as tried before
+        self.seed = seed
+        return to_new
+
     def paired(self, m: PairMatch, k: int) -> PairMatch:
         """m (member k placed onto the union) restated as a pair of k and the member it overlaps most."""
         anchor = self.union.anchor(k)
@@ -96,6 +113,7 @@ class Grower:
         self.memory = memory if memory is not None else EstimationMemory()   # one estimation's own, offline
         self.names = list(names) if names is not None else list(range(len(prepared)))
         self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
+        self.refused_onto: Dict[tuple, PairMatch] = {}   # (grid, group seed) -> its last refused match onto it
         self.contradicting: set = set()          # grids that overlap a group's union but contradict it
         # grid -> members of the unions a refused match found it overlaps (overlap_found, by the rule for pairs when
         # the group was one grid: the rule for unions on a pair's refusal kept a robot from the search that placed it)
@@ -225,6 +243,7 @@ class Grower:
                 added = True
             else:
                 self.refused[m.i] = m
+                self.refused_onto[(m.i, m.j)] = m
                 if overlap_found(m.best, self.s, len(group.members) > 1):
                     self.found.setdefault(m.i, []).append(frozenset(group.members))
                 if len(group.members) > 1 and m.best is not None and m.best.support >= self.s.min_support \
@@ -309,6 +328,39 @@ class Grower:
                                       frozenset(self.names[m] for m in group.members)))
             todo = [c.k for c in failed if c is not worst]
 
+    def evict_contradicted(self, group: Group, unplaced: List[int]) -> None:
+        """Take out of the group a member that maps left out contradict while they agree with the other members
+        (eviction.py: a broken map placed by one of its parts), and match those maps again onto what remains. The
+        member taken out stays out of this estimation."""
+        for _ in range(MAX_PASSES):
+            onto = {k: self.refused_onto[(k, group.seed)] for k in unplaced if (k, group.seed) in self.refused_onto}
+            singled = contradicted_members(unplaced, onto, group.seed, group.members, group.union.footprints,
+                                           lambda k, t: footprint(self.grids[k], t), self.prepared,
+                                           (self.reference,), self.s)
+            if not singled:
+                return
+            j = singled[0]
+            log.debug('grid %d leaves the merge: maps left out agree with the other members and contradict it', j)
+            if j == group.seed:
+                # the largest maps seed groups, and a broken map is often the largest: the largest other member
+                # becomes the seed, and the matches refused onto the group are restated in its frame
+                new_seed = max((k for k in group.members if k != j), key=lambda k: self.prepared[k].known_pixels)
+                self._restate_refused(j, new_seed, group.reframe(new_seed))
+            group.leave(j)
+            self.contradicting.add(j)
+            self.refused[j] = PairMatch(j, group.seed, reason='maps the other members agree with contradict it')
+            self.grow(group, unplaced, search=False)
+
+    def _restate_refused(self, old_seed: int, new_seed: int, old_to_new: np.ndarray) -> None:
+        """The matches refused onto a group whose frame becomes another's (the group is absorbed, or reseeded),
+        restated in the new frame: where they placed a grid left out still says what its members think of it."""
+        for (k, j), m in list(self.refused_onto.items()):
+            if j == old_seed:
+                del self.refused_onto[(k, j)]
+                if m.transform_m is not None and (k, new_seed) not in self.refused_onto:
+                    self.refused_onto[(k, new_seed)] = dataclasses.replace(m, j=new_seed,
+                                                                           transform_m=old_to_new @ m.transform_m)
+
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
         grows again with the grids still unplaced (by descriptors alone while another group is larger)."""
@@ -325,9 +377,11 @@ class Grower:
                     if m.accepted:
                         # the merged frame stays that of the preferred reference's group
                         if self.reference in small.members:
+                            self._restate_refused(big.seed, small.seed, tf.inverse(m.transform_m))
                             small.absorb(big, tf.inverse(m.transform_m), m)
                             groups[a] = small
                         else:
+                            self._restate_refused(small.seed, big.seed, m.transform_m)
                             big.absorb(small, m.transform_m, m)
                         for k in groups[a].members:
                             self._forget_search(k, groups[a])

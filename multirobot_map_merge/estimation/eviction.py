@@ -1,0 +1,80 @@
+"""Members that keep the others out: a map placed in a group that the maps left out contradict, one by one.
+
+A map broken by a SLAM failure (part of it turned) joins a group placed by one of its parts while its other part
+overlaps nothing yet. Maps that later overlap that part agree with every other member but contradict it, and are
+refused by the union: in a generated 36-robot warehouse nine maps agreed wall for wall (1.00) with every member
+they overlapped but one, and 0.32-0.64 with that one, so the union refused them (0.82-0.88). Which group a
+broken map falls into first then decides which robots are merged. Here each map left out is judged against the
+members one by one, at the place its match onto the union found; a member that is the only one to contradict maps
+the other members agree with is taken out of the group, and the maps left out are matched again.
+"""
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from typing import TYPE_CHECKING, Dict, List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .. import transforms as tf
+from .features import PreparedGrid
+from .pair import PairMatch
+from .union import overlap_area
+from .verify import plausible, verify
+
+
+if TYPE_CHECKING:
+    from .settings import EstimationSettings
+
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.eviction')
+
+MIN_AGREEING = 2   # members that must agree with a map left out for its contradiction of one other to count
+MIN_VOTES = 2      # maps left out that must single out the same member, unless MANY_AGREEING agree with each
+MANY_AGREEING = 3
+
+
+def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
+                  box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings):
+    """(agreeing, contradicting): the members that grid k, placed by `placed_k` (metric: its map -> the group's
+    frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it."""
+    agreeing, contradicting = [], []
+    pk = prepared[k]
+    for j, t in members.items():
+        if overlap_area(box, footprints.get(j)) < s.min_overlap_m2 or prepared[j] is None:
+            continue
+        pj = prepared[j]
+        model = tf.inverse(pj.px_to_map) @ tf.inverse(t) @ placed_k @ pk.px_to_map
+        c = verify(pk, pj, model, s)
+        if c.overlap_m2 < s.min_overlap_m2 or c.support + c.conflicts < s.min_support:
+            continue
+        (agreeing if plausible(c, s) else contradicting).append(j)
+    return agreeing, contradicting
+
+
+def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatch], seed: int,
+                         members: Mapping[int, np.ndarray], footprints: Mapping, footprint_of,
+                         prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
+                         s: EstimationSettings) -> List[int]:
+    """The members (never those in `keep`) that maps left out single out: each such map, at the place
+    its refused match onto the union found, agrees with at least MIN_AGREEING members and contradicts this one
+    alone. A member singled out by MIN_VOTES maps, or by one that MANY_AGREEING members agree with, is returned,
+    the most singled out first."""
+    votes: Counter = Counter()
+    strong: Dict[int, bool] = {}
+    for k in left_out:
+        m = refused.get(k)
+        if m is None or m.j != seed or m.best is None or m.transform_m is None or prepared[k] is None \
+                or m.best.support < s.min_support or m.best.overlap_m2 < s.min_overlap_m2:
+            continue
+        box = footprint_of(k, m.transform_m)
+        agreeing, contradicting = judge_members(k, m.transform_m, members, footprints, box, prepared, s)
+        if len(contradicting) != 1 or len(agreeing) < MIN_AGREEING:
+            continue
+        j = contradicting[0]
+        if j in keep or len(members) < 3:
+            continue
+        votes[j] += 1
+        strong[j] = strong.get(j, False) or len(agreeing) >= MANY_AGREEING
+        log.debug('grid %d left out agrees with members %s of the merge and contradicts member %d alone', k,
+                  agreeing, j)
+    return [j for j, n in votes.most_common() if n >= MIN_VOTES or strong[j]]
