@@ -65,15 +65,29 @@ SCENARIOS: Dict[str, dict] = {
 
 # ----------------------------------------------------------------------------------------------- motion
 
+_GRAPHS: Dict[bytes, nx.Graph] = {}   # lattice graphs of the last free masks: building one takes seconds
+
+
+def lattice_graph(free: np.ndarray, k: int) -> nx.Graph:
+    """plan()'s 8-connected lattice of k x k cell blocks that are all free, built once per free mask (the same
+    graph, built in the same order, as before it was kept: the same paths)."""
+    h, w = free.shape[0] // k, free.shape[1] // k
+    coarse = free[:h * k, :w * k].reshape(h, k, w, k).all(axis=(1, 3))
+    key = np.packbits(coarse).tobytes() + np.array(coarse.shape).tobytes()
+    if key not in _GRAPHS:
+        g = nx.grid_2d_graph(w, h)              # nodes (col, row)
+        g.add_edges_from((((c, r), (c + 1, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
+        g.add_edges_from((((c + 1, r), (c, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
+        g.remove_nodes_from([(c, r) for r, c in zip(*np.nonzero(~coarse))])
+        _GRAPHS.clear()                         # one world at a time: a graph is hundreds of MB
+        _GRAPHS[key] = g
+    return _GRAPHS[key]
+
+
 def plan(free: np.ndarray, start: Tuple[float, float], goal: Tuple[float, float], res: float) -> List[Tuple]:
     """Shortest 8-connected path on a 0.1 m lattice of cells with clearance, shortcut by line of sight."""
     k = max(1, int(round(0.1 / res)))
-    h, w = free.shape[0] // k, free.shape[1] // k
-    coarse = free[:h * k, :w * k].reshape(h, k, w, k).all(axis=(1, 3))
-    g = nx.grid_2d_graph(w, h)              # nodes (col, row)
-    g.add_edges_from((((c, r), (c + 1, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
-    g.add_edges_from((((c + 1, r), (c, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
-    g.remove_nodes_from([(c, r) for r, c in zip(*np.nonzero(~coarse))])
+    g = lattice_graph(free, k)
     node = lambda p: (int(p[0] / (res * k)), int(p[1] / (res * k)))   # noqa: E731
     s, t = node(start), node(goal)
     if s not in g or t not in g:
