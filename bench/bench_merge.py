@@ -325,11 +325,12 @@ def building_names(arg: str) -> List[str]:
     return arg.split(',')
 
 
-def run_buildings(names: List[str], cache: Path, markdown: Optional[Path]) -> int:
+def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], replayed: bool = False) -> int:
     """Each generated scenario: made if missing, merged by merge_maps -v (its own process), scored; one row each,
-    the median and worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis)."""
+    the median and worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis;
+    with replayed, each such map is also matched again against right-placed maps and the final union)."""
     import make_sample_maps
-    from merge_diagnosis import cause_counts, diagnose, verdict_lines
+    from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
     for name in names:
         try:
@@ -351,6 +352,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path]) -> in
         verdicts = diagnose(log.read_text(), scored, truth)
         verdicts_all += verdicts
         notes += verdict_lines(name, verdicts, [m['file'] for m in truth['maps']])
+        if replayed and verdicts:
+            print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr, flush=True)
+            notes += replay(folder, truth, scored, cache / f'{name}_result', verdicts)
         t = (scored['estimate_ms'] or 0.0) / 1000
         left = sum(v.outcome == 'left out' for v in verdicts)
         rows.append({'name': name, 'pattern': pattern, 'mergeable': scored['mergeable'], 'correct': scored['correct'],
@@ -427,6 +431,10 @@ def main() -> int:
                          'false merges, estimation time), the median and worst, and why each mergeable map is left '
                          'out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
                          'large36_b.._d, <kind>36 for every building kind), or none: every building kind')
+    ap.add_argument('--replay', action='store_true',
+                    help='with --generated: match each mergeable map not placed right again, against the right-placed '
+                         'maps it overlaps most and against the merged map, each verdict checked with the truth '
+                         '(after the timing: a pair refused that the union also refuses, or accepted by pairs only)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario revealed as a fleet explores it, estimated afresh at these shares '
                          'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
@@ -440,7 +448,7 @@ def main() -> int:
         unknown = [n for n in names if n not in make_sample_maps.GENERATED]
         if unknown:
             ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
-        return run_buildings(names, (args.large36 or REPO / 'out' / 'bench').resolve(), args.markdown)
+        return run_buildings(names, (args.large36 or REPO / 'out' / 'bench').resolve(), args.markdown, args.replay)
     if args.large36:
         return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)

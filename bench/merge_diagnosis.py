@@ -6,13 +6,18 @@ accepted lines tells which group each map ended in; a mergeable map the result l
 (its own matches were all refused: the last refusal is its cause) or in a side group that never joined the merge
 (the cause is that group's last refused merge). A map placed wrong is reported with the match that placed it.
 
-    from merge_diagnosis import diagnose, cause_of
+    from merge_diagnosis import diagnose, cause_counts, replay
 """
 from __future__ import annotations
 
+import json
+import math
 import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Dict, List, Optional
+
+import numpy as np
 
 PAIR = re.compile(r'pair (\d+)-(\d+): .*?agreement ([0-9.]+), overlap ([0-9.]+) m2, (.*)$')
 # reason text -> cause label; the first that matches (verify.refusal, pair.match_pair, tracking)
@@ -130,3 +135,80 @@ def cause_counts(verdicts: List[Verdict]) -> Dict[str, int]:
 def verdict_lines(name: str, verdicts: List[Verdict], files: Optional[List[str]] = None) -> List[str]:
     label = (lambda k: files[k].rsplit('.', 1)[0]) if files else str   # noqa: E731
     return [f'- {name} {label(v.map_index)}: {v.outcome}, {v.cause}: {v.detail}' for v in verdicts]
+
+
+# ----------------------------------------------------------------------------------------------- replayed matches
+# The log cannot tell a right placement refused from a wrong one. replay() matches a map not placed right again, as
+# the estimator would: against each of the right-placed maps it overlaps most (a pair) and against the merged map
+# merge_maps wrote (the final union); each verdict is compared with the truth.
+
+def _right(est: np.ndarray, true: np.ndarray, corners: np.ndarray, cell: float) -> bool:
+    """Within the scorer's tolerance: 1.5 degrees, 3 cells at the corners of the map's known box."""
+    rot = abs(math.degrees(math.remainder(math.atan2(est[1, 0], est[0, 0]) - math.atan2(true[1, 0], true[0, 0]),
+                                          2 * math.pi)))
+    pts = np.c_[corners, np.ones(len(corners))].T
+    return rot <= 1.5 and float(np.max(np.hypot(*((est @ pts) - (true @ pts))[:2]))) <= 3 * cell + 1e-9
+
+
+def _verdict(m, true: np.ndarray, corners: np.ndarray, cell: float) -> str:
+    if m.transform_m is None:
+        return m.reason or 'no placement'
+    right = 'right' if _right(m.transform_m, true, corners, cell) else 'WRONG'
+    return f"{'accepted' if m.accepted else 'refused'} {right} (agreement {m.best.agreement:.2f}" + \
+        (f', {m.reason}' if not m.accepted else '') + ')'
+
+
+def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: List[Verdict],
+           pairs: int = 2) -> List[str]:
+    """One line per verdict: its map matched again against its best-overlapping right-placed maps and the union."""
+    from multirobot_map_merge import transforms as tf
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair
+    from multirobot_map_merge.estimation.settings import EstimationSettings
+    from multirobot_map_merge.mapio import load_map
+    s = EstimationSettings()
+    ms = truth['maps']
+    files = [m['file'] for m in ms]
+    ok = {p['file'].rsplit('/', 1)[-1] for p in scored['placements'] if p['ok']} | \
+        {(scored.get('reference') or '').rsplit('/', 1)[-1]}
+    pose = [tf.rigid(*m['pose']) for m in ms]
+    grids = {k: load_map(str(folder / files[k])) for k in range(len(ms))}
+    res = max(min(g.resolution for g in grids.values()), s.min_work_resolution)
+    prepared: Dict[int, object] = {}
+
+    def prep(k: int):
+        if k not in prepared:
+            prepared[k] = prepare(grids[k], res, s.feature)
+        return prepared[k]
+    union_line = ''
+    merged_yaml, result_json = result_dir / 'merged.yaml', result_dir / 'result.json'
+    union = merged_from_world = None
+    ref = (scored.get('reference') or '').rsplit('/', 1)[-1]
+    if merged_yaml.is_file() and ref in files:
+        est = {m['file'].rsplit('/', 1)[-1]: m.get('transform') for m in json.loads(result_json.read_text())['maps']}
+        r = files.index(ref)
+        t = est[ref]
+        ref_pose = ([ms[r]['pose']] + ms[r].get('alt_poses', []))[scored.get('reference_pose', 0)]
+        merged_from_world = tf.rigid(t['x'], t['y'], t['yaw']) @ tf.inverse(tf.rigid(*ref_pose))
+        union = prepare(load_map(str(merged_yaml)), res, s.feature)
+    elif not merged_yaml.is_file():
+        union_line = '; no merged map to match against'
+    lines = []
+    for v in verdicts:
+        k = v.map_index
+        corners = np.asarray(ms[k]['known_bbox'], float)
+        cell = ms[k]['resolution']
+        near = sorted((j for j in range(len(ms)) if j != k and files[j] in ok and not ms[j]['broken']
+                       and truth['overlap']['shared_m2'][k][j] >= truth['overlap']['min_shared_m2']
+                       and truth['overlap']['fraction'][k][j] >= truth['overlap']['min_fraction']),
+                      key=lambda j: -truth['overlap']['shared_m2'][k][j])[:pairs]
+        said = []
+        for j in near:
+            m = match_pair(k, j, prep(k), prep(j), s)
+            said.append(f"pair with {files[j][:-5]} ({truth['overlap']['shared_m2'][k][j]:.0f} m2): "
+                        f"{_verdict(m, tf.inverse(pose[j]) @ pose[k], corners, cell)}")
+        if union is not None:
+            m = match_pair(k, -1, prep(k), union, s, onto_union=True)
+            said.append(f'the final union: {_verdict(m, merged_from_world @ pose[k], corners, cell)}')
+        lines.append(f"  - {files[k][:-5]} again: {'; '.join(said) or 'no right-placed map overlaps it'}{union_line}")
+    return lines

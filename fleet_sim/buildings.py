@@ -225,20 +225,23 @@ def cave(rng: np.random.Generator) -> Canvas:
 
 
 def pillar_hall(rng: np.random.Generator) -> Canvas:
-    """Two or three large halls with a regular grid of pillars, joined by wide openings."""
+    """Two or three large halls side by side with a regular grid of pillars (each hall its own size and grid
+    offset, as the halls of one building differ), joined by wide openings."""
     n = int(rng.integers(2, 4))
-    hw, hh = float(rng.uniform(16.0, 22.0)), float(rng.uniform(20.0, 28.0))
+    widths, heights = rng.uniform(14.0, 22.0, n), rng.uniform(18.0, 28.0, n)
     pitch, size = float(rng.uniform(4.5, 6.5)), float(rng.uniform(0.4, 0.7))
-    cv = Canvas(n * (hw + 0.3) + 1.0, hh + 1.0, rng)
-    for i in range(n):
-        x0 = 0.5 + i * (hw + 0.3)
+    cv = Canvas(float(widths.sum()) + 0.3 * n + 1.0, float(heights.max()) + 1.0, rng)
+    x0 = 0.5
+    for i, (hw, hh) in enumerate(zip(widths.tolist(), heights.tolist())):
         cv.rect(x0, 0.5, x0 + hw, 0.5 + hh)
-        for x in np.arange(x0 + pitch, x0 + hw - 1.0, pitch):
-            for y in np.arange(0.5 + pitch, 0.5 + hh - 1.0, pitch):
+        ox, oy = rng.uniform(2.0, pitch, 2).tolist()
+        for x in np.arange(x0 + ox, x0 + hw - 1.5, pitch):
+            for y in np.arange(0.5 + oy, 0.5 + hh - 1.5, pitch):
                 cv.rect(x - size / 2, y - size / 2, x + size / 2, y + size / 2, 'solid')
         if i:
-            y = float(rng.uniform(2.0, hh - 6.0))
+            y = float(rng.uniform(2.0, min(hh, heights[i - 1]) - 6.0))
             cv.rect(x0 - 0.4, y, x0 + 0.1, y + float(rng.uniform(2.5, 4.0)))
+        x0 += hw + 0.3
     return cv
 
 
