@@ -325,13 +325,14 @@ def building_names(arg: str) -> List[str]:
     return arg.split(',')
 
 
-def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], replayed: bool = False) -> int:
+def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False) -> int:
     """Each generated scenario: made if missing, merged by merge_maps -v (its own process), scored; one row each,
     the median and worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis;
-    with replayed, each such map is also matched again against right-placed maps and the final union)."""
+    with again, each such map is also matched again against right-placed maps and the final union)."""
     import make_sample_maps
     from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
+    replayed: Dict[str, int] = {}
     for name in names:
         try:
             ensure_generated(cache, name)
@@ -352,9 +353,13 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], repla
         verdicts = diagnose(log.read_text(), scored, truth)
         verdicts_all += verdicts
         notes += verdict_lines(name, verdicts, [m['file'] for m in truth['maps']])
-        if replayed and verdicts:
-            print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr, flush=True)
-            notes += replay(folder, truth, scored, cache / f'{name}_result', verdicts)
+        if again and verdicts:
+            print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr,
+                  flush=True)
+            matched = replay(folder, truth, scored, cache / f'{name}_result', verdicts)
+            notes += [line for line, _ in matched]
+            for _, label in matched:
+                replayed[label] = replayed.get(label, 0) + 1
         t = (scored['estimate_ms'] or 0.0) / 1000
         left = sum(v.outcome == 'left out' for v in verdicts)
         rows.append({'name': name, 'pattern': pattern, 'mergeable': scored['mergeable'], 'correct': scored['correct'],
@@ -378,8 +383,13 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], repla
     counts = cause_counts(verdicts_all)
     if counts:
         lines += ['', 'why mergeable maps are not placed right (maps per cause, bench/merge_diagnosis.py):', '',
-                  '| outcome: cause | maps |', '|---|---|', *(f'| {k} | {v} |' for k, v in counts.items()), '',
-                  *notes]
+                  '| outcome: cause | maps |', '|---|---|', *(f'| {k} | {v} |' for k, v in counts.items()), '']
+    if replayed:
+        lines += ['the same maps matched again (--replay) against the right-placed maps they overlap most and the '
+                  'final union:', '', '| matched again | maps |', '|---|---|',
+                  *(f'| {k} | {v} |' for k, v in sorted(replayed.items(), key=lambda kv: -kv[1])), '']
+    if counts:
+        lines += notes
     print('\n'.join(lines), flush=True)
     if markdown:
         markdown.write_text('\n'.join(lines) + '\n')

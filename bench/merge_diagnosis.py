@@ -158,9 +158,29 @@ def _verdict(m, true: np.ndarray, corners: np.ndarray, cell: float) -> str:
         (f', {m.reason}' if not m.accepted else '') + ')'
 
 
+REPLAYED = {  # what the matches again say, most telling first
+    'union right': 'the final union accepts it, right (left out by the order of the growth)',
+    'pair right': 'a pair accepts it, right; the final union refuses it',
+    'wrong': 'accepted again but wrong (a pair or the union)',
+    'refused': 'refused by its pairs and by the final union',
+}
+
+
+def replayed_label(outcomes: List[tuple]) -> str:
+    """outcomes: (against, accepted, right) for each match again; against is 'pair' or 'union'."""
+    if any(a == 'union' and acc and ok for a, acc, ok in outcomes):
+        return REPLAYED['union right']
+    if any(a == 'pair' and acc and ok for a, acc, ok in outcomes):
+        return REPLAYED['pair right']
+    if any(acc and not ok for _, acc, ok in outcomes):
+        return REPLAYED['wrong']
+    return REPLAYED['refused']
+
+
 def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: List[Verdict],
-           pairs: int = 2) -> List[str]:
-    """One line per verdict: its map matched again against its best-overlapping right-placed maps and the union."""
+           pairs: int = 2) -> List[tuple]:
+    """(line, label of REPLAYED) per verdict: its map matched again against its best-overlapping right-placed maps
+    and the final union."""
     from multirobot_map_merge import transforms as tf
     from multirobot_map_merge.estimation.features import prepare
     from multirobot_map_merge.estimation.pair import match_pair
@@ -202,13 +222,17 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
                        and truth['overlap']['shared_m2'][k][j] >= truth['overlap']['min_shared_m2']
                        and truth['overlap']['fraction'][k][j] >= truth['overlap']['min_fraction']),
                       key=lambda j: -truth['overlap']['shared_m2'][k][j])[:pairs]
-        said = []
-        for j in near:
-            m = match_pair(k, j, prep(k), prep(j), s)
-            said.append(f"pair with {files[j][:-5]} ({truth['overlap']['shared_m2'][k][j]:.0f} m2): "
-                        f"{_verdict(m, tf.inverse(pose[j]) @ pose[k], corners, cell)}")
+        said, outcomes = [], []
+        tries = [('pair', j, prep(j), tf.inverse(pose[j]) @ pose[k]) for j in near]
         if union is not None:
-            m = match_pair(k, -1, prep(k), union, s, onto_union=True)
-            said.append(f'the final union: {_verdict(m, merged_from_world @ pose[k], corners, cell)}')
-        lines.append(f"  - {files[k][:-5]} again: {'; '.join(said) or 'no right-placed map overlaps it'}{union_line}")
+            tries.append(('union', -1, union, merged_from_world @ pose[k]))
+        for against, j, target, true in tries:
+            m = match_pair(k, j, prep(k), target, s, onto_union=against == 'union')
+            right = m.transform_m is not None and _right(m.transform_m, true, corners, cell)
+            outcomes.append((against, m.accepted, right))
+            said.append((f"pair with {files[j][:-5]} ({truth['overlap']['shared_m2'][k][j]:.0f} m2)"
+                         if against == 'pair' else 'the final union') + f': {_verdict(m, true, corners, cell)}')
+        label = replayed_label(outcomes)
+        lines.append((f"  - {files[k][:-5]} again ({label}): {'; '.join(said) or 'no right-placed map overlaps it'}"
+                      f"{union_line}", label))
     return lines
