@@ -225,7 +225,7 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
         said, outcomes = [], []
         tries = [('pair', j, prep(j), tf.inverse(pose[j]) @ pose[k]) for j in near]
         if union is not None:
-            tries.append(('union', -1, union, merged_from_world @ pose[k]))
+            tries.append(('union', len(ms), union, merged_from_world @ pose[k]))   # an index no map has
         for against, j, target, true in tries:
             m = match_pair(k, j, prep(k), target, s, onto_union=against == 'union')
             right = m.transform_m is not None and _right(m.transform_m, true, corners, cell)
