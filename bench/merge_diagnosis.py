@@ -163,6 +163,7 @@ REPLAYED = {  # what the matches again say, most telling first
     'pair right': 'a pair accepts it, right; the final union refuses it',
     'wrong': 'accepted again but wrong (a pair or the union)',
     'refused': 'refused by its pairs and by the final union',
+    'no pair': 'no right-placed map overlaps it; the final union refuses it',
 }
 
 
@@ -174,7 +175,7 @@ def replayed_label(outcomes: List[tuple]) -> str:
         return REPLAYED['pair right']
     if any(acc and not ok for _, acc, ok in outcomes):
         return REPLAYED['wrong']
-    return REPLAYED['refused']
+    return REPLAYED['refused'] if any(a == 'pair' for a, _, _ in outcomes) else REPLAYED['no pair']
 
 
 def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: List[Verdict],
@@ -232,6 +233,13 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
             outcomes.append((against, m.accepted, right))
             said.append((f"pair with {files[j][:-5]} ({truth['overlap']['shared_m2'][k][j]:.0f} m2)"
                          if against == 'pair' else 'the final union') + f': {_verdict(m, true, corners, cell)}')
+        if not near:                # what holds it to the merge in the truth: its group's best link
+            ov = truth['overlap']
+            link = max(((ov['shared_m2'][a][j], ov['fraction'][a][j], a, j) for a in v.side_group + [k]
+                        for j in range(len(ms)) if files[j] in ok), default=None)
+            if link is not None:
+                said.append(f'its group meets the merge at most by {files[link[2]][:-5]}-{files[link[3]][:-5]}, '
+                            f'{link[0]:.0f} m2 ({100 * link[1]:.0f} %)')
         label = replayed_label(outcomes)
         lines.append((f"  - {files[k][:-5]} again ({label}): {'; '.join(said) or 'no right-placed map overlaps it'}"
                       f"{union_line}", label))

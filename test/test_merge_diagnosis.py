@@ -49,3 +49,13 @@ def test_maps_placed_right_or_not_mergeable_are_not_reported():
     truth, scored = scenario(3, [0, 1, 2], [(1, True)])
     (v,) = diagnose(text, scored, truth)
     assert (v.map_index, v.cause) == (2, 'agreement')
+
+
+def test_replayed_labels_say_which_match_would_place_the_map():
+    from merge_diagnosis import REPLAYED, replayed_label
+    assert replayed_label([('pair', True, True), ('union', True, True)]) == REPLAYED['union right']
+    assert replayed_label([('pair', False, True), ('pair', True, True), ('union', False, False)]) == \
+        REPLAYED['pair right']
+    assert replayed_label([('pair', True, False), ('union', False, True)]) == REPLAYED['wrong']
+    assert replayed_label([('pair', False, True), ('union', False, False)]) == REPLAYED['refused']
+    assert replayed_label([('union', False, False)]) == REPLAYED['no pair']
