@@ -215,7 +215,7 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
     if (cache / name / 'truth.json').is_file():
         return None
     cache.mkdir(parents=True, exist_ok=True)
-    print(f'... generating {name} into {cache} (a few minutes)', file=sys.stderr, flush=True)
+    print(f'... generating {name} into {cache} (under a minute)', file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     cmd = [sys.executable, str(REPO / 'scripts' / 'make_sample_maps.py'), '--scenario', name, '--out', str(cache)]
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
