@@ -2,7 +2,8 @@
 """Benchmark of the merging core (not a test: it prints figures and their ratio to the targets).
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
-    scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--generated NAMES] [--repeat N] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --reveal SHARES [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
@@ -26,6 +27,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / 'scripts'))   # make_sample_maps: the generated scenarios' specs
 import machine  # noqa: E402  (bench/, beside this script)
 
 CANVAS = 2048
@@ -213,7 +215,7 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
     if (cache / name / 'truth.json').is_file():
         return None
     cache.mkdir(parents=True, exist_ok=True)
-    print(f'... generating {name} into {cache} (a few minutes)', file=sys.stderr, flush=True)
+    print(f'... generating {name} into {cache} (under a minute)', file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     cmd = [sys.executable, str(REPO / 'scripts' / 'make_sample_maps.py'), '--scenario', name, '--out', str(cache)]
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
@@ -223,9 +225,10 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
     return time.perf_counter() - t0
 
 
-def merge_and_score(folder: Path, out_dir: Path) -> Optional[dict]:
+def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None) -> Optional[dict]:
     """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
-    with the shared scorer; None if the scorer is missing or a step failed."""
+    with the shared scorer; None if the scorer is missing or a step failed. With log, merge_maps runs with -v and
+    its stderr (each match judged, with its reason) goes to that file."""
     score_py = SHARED_EVAL / 'score.py'
     if not score_py.is_file():
         print(f'bench_merge: {score_py} not found: not scored', file=sys.stderr)
@@ -235,9 +238,12 @@ def merge_and_score(folder: Path, out_dir: Path) -> Optional[dict]:
     result = out_dir / 'result.json'
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
     merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
-             '--output', str(out_dir / 'merged'), *(str(folder / m['file']) for m in truth['maps'])]
+             '--output', str(out_dir / 'merged'), *(['-v'] if log else []),
+             *(str(folder / m['file']) for m in truth['maps'])]
     print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
-    if subprocess.run(merge, env=env, stdout=subprocess.DEVNULL).returncode != 0 or not result.is_file():
+    with open(log, 'w') if log else open(os.devnull, 'w') as err:
+        code = subprocess.run(merge, env=env, stdout=subprocess.DEVNULL, stderr=err if log else None).returncode
+    if code != 0 or not result.is_file():
         print('bench_merge: merge_maps failed', file=sys.stderr)
         return None
     proc = subprocess.run([sys.executable, str(score_py), '--truth', str(folder / 'truth.json'),
@@ -311,6 +317,85 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
     return (0 if row is not None and scored is not None else 1), lines
 
 
+def building_names(arg: str) -> List[str]:
+    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), or a list."""
+    import make_sample_maps
+    if arg == 'buildings':
+        return [f'{kind}36' for kind in make_sample_maps.BUILDING_FLEETS]
+    return arg.split(',')
+
+
+def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False) -> int:
+    """Each generated scenario: made if missing, merged by merge_maps -v (its own process), scored; one row each,
+    the median and worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis;
+    with again, each such map is also matched again against right-placed maps and the final union)."""
+    import make_sample_maps
+    from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
+    rows, notes, verdicts_all, status = [], [], [], 0
+    replayed: Dict[str, int] = {}
+    for name in names:
+        try:
+            ensure_generated(cache, name)
+        except RuntimeError as e:
+            notes.append(f'- {name}: {e}')
+            status = 2
+            continue
+        folder = cache / name
+        truth = json.loads((folder / 'truth.json').read_text())
+        log = cache / f'{name}_result' / 'merge_maps.log'
+        scored = merge_and_score(folder, cache / f'{name}_result', log)
+        spec = make_sample_maps.GENERATED.get(name, {})
+        pattern = spec.get('pattern', 'random')
+        if scored is None:
+            rows.append(f'| {name} | {pattern} | {len(truth["mergeable"])} | - | - | - | - |')
+            status = max(status, 1)
+            continue
+        verdicts = diagnose(log.read_text(), scored, truth)
+        verdicts_all += verdicts
+        notes += verdict_lines(name, verdicts, [m['file'] for m in truth['maps']])
+        if again and verdicts:
+            print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr,
+                  flush=True)
+            matched = replay(folder, truth, scored, cache / f'{name}_result', verdicts)
+            notes += [line for line, _ in matched]
+            for _, label in matched:
+                replayed[label] = replayed.get(label, 0) + 1
+        t = (scored['estimate_ms'] or 0.0) / 1000
+        left = sum(v.outcome == 'left out' for v in verdicts)
+        rows.append({'name': name, 'pattern': pattern, 'mergeable': scored['mergeable'], 'correct': scored['correct'],
+                     'wrong': scored['wrong'], 'left': left, 'broken_ok': scored['broken_ok'], 't': t})
+    done = [r for r in rows if isinstance(r, dict)]
+    lines = [f'generated buildings ({cache}): merge_maps -v, one process per building, cold; {machine.describe()}', '',
+             '| building | robots | placed right / mergeable | false merges | mergeable left out | broken placed '
+             'consistently | estimation (s) |', '|---|---|---|---|---|---|---|']
+    for r in rows:
+        lines.append(r if isinstance(r, str) else
+                     f"| {r['name']} | {r['pattern']} | {r['correct']}/{r['mergeable']} | {r['wrong']} | {r['left']} | "
+                     f"{r['broken_ok']} | {r['t']:.2f} |")
+    if done:
+        times = sorted(r['t'] for r in done)
+        worst = max(done, key=lambda r: r['t'])
+        lines += ['', f"- placed right {sum(r['correct'] for r in done)} of {sum(r['mergeable'] for r in done)} "
+                      f"mergeable maps in {len(done)} buildings ({sum(r['correct'] == r['mergeable'] for r in done)} "
+                      f"buildings complete); false merges {sum(r['wrong'] for r in done)}",
+                  f"- estimation median {statistics.median(times):.2f} s, worst {worst['t']:.2f} s ({worst['name']})"
+                  f" (targets {LARGE36_TARGET_S:.0f} s and {2 * LARGE36_TARGET_S:.0f} s)"]
+    counts = cause_counts(verdicts_all)
+    if counts:
+        lines += ['', 'why mergeable maps are not placed right (maps per cause, bench/merge_diagnosis.py):', '',
+                  '| outcome: cause | maps |', '|---|---|', *(f'| {k} | {v} |' for k, v in counts.items()), '']
+    if replayed:
+        lines += ['the same maps matched again (--replay) against the right-placed maps they overlap most and the '
+                  'final union:', '', '| matched again | maps |', '|---|---|',
+                  *(f'| {k} | {v} |' for k, v in sorted(replayed.items(), key=lambda kv: -kv[1])), '']
+    if counts:
+        lines += notes
+    print('\n'.join(lines), flush=True)
+    if markdown:
+        markdown.write_text('\n'.join(lines) + '\n')
+    return status
+
+
 def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
     """The 30-map scenario revealed as a fleet explores it (bench/reveal.py: 2 m tiles, nearest to each robot's start
     first, as bench_node publishes them), estimated afresh at each share of the reveal and scored: maps placed, and
@@ -350,9 +435,16 @@ def main() -> int:
     ap.add_argument('--large36', type=Path, nargs='?', const=REPO / 'out' / 'bench', metavar='CACHE',
                     help='only the generated 36-map scenario (9 broken maps): made into CACHE/large36 if missing '
                          '(default out/bench), timed as the 30-map row, then merged by merge_maps and scored')
-    ap.add_argument('--generated', metavar='NAMES', type=lambda v: v.split(','),
-                    help=f'with --large36: these generated scenarios instead, comma-separated, made into CACHE/NAME '
-                         f'(the same fleet in other buildings: {", ".join(GENERATED_ROWS)}; a few minutes each)')
+    ap.add_argument('--generated', metavar='NAMES', nargs='?', const='buildings',
+                    help='generated scenarios, made into CACHE/NAME if missing (--large36 CACHE, default out/bench; '
+                         'under a minute each), one merge_maps -v process each: a row per scenario (placed right, '
+                         'false merges, estimation time), the median and worst, and why each mergeable map is left '
+                         'out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
+                         'large36_b.._d, <kind>36 for every building kind), or none: every building kind')
+    ap.add_argument('--replay', action='store_true',
+                    help='with --generated: match each mergeable map not placed right again, against the right-placed '
+                         'maps it overlaps most and against the merged map, each verdict checked with the truth '
+                         '(after the timing: a pair refused that the union also refuses, or accepted by pairs only)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario revealed as a fleet explores it, estimated afresh at these shares '
                          'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
@@ -360,13 +452,15 @@ def main() -> int:
     args = ap.parse_args()
     if args.large36 or args.row in GENERATED_ROWS:
         ROWS.update(GENERATED_ROWS)
-    if args.generated and not args.large36:
-        ap.error('--generated needs --large36 [CACHE]')
-    unknown = [n for n in args.generated or () if n not in GENERATED_ROWS]
-    if unknown:
-        ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(GENERATED_ROWS)})')
+    if args.generated:
+        import make_sample_maps
+        names = building_names(args.generated)
+        unknown = [n for n in names if n not in make_sample_maps.GENERATED]
+        if unknown:
+            ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
+        return run_buildings(names, (args.large36 or REPO / 'out' / 'bench').resolve(), args.markdown, args.replay)
     if args.large36:
-        return run_generated(args.generated or ['large36'], args.large36.resolve(), max(1, args.repeat),
+        return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)
     data_dir = args.data.resolve()
     if not data_dir.is_dir():

@@ -6,8 +6,9 @@
 
 Writes <out>/world.yaml/.pgm and, per scenario, <out>/<scenario>/map_NN.yaml/.pgm (each map in its robot's own
 frame: start pose at the origin) and truth.json in the format of the shared scorer (mmeval-truth-1). Deterministic:
-the same files on every run. --scenario NAME writes only the generated scenario NAME (see GENERATED: random robots
-in a building of its own, with broken maps) to <out>/NAME; it is not part of the default run.
+the same files on every run. --scenario NAME writes only the generated scenario NAME (see GENERATED: 36 robots in a
+building of their own, a quarter with broken maps; large36*: fleet_sim.world's floor plans, random robots; <kind>36:
+a building of fleet_sim.buildings, robots in chains, stars or clusters) to <out>/NAME; not part of the default run.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
+from fleet_sim.buildings import make_building  # noqa: E402
 from fleet_sim.laser import beam_angles, cast  # noqa: E402
 from fleet_sim.mapping import LogOddsMap, compose, relative_pose  # noqa: E402
 from fleet_sim.world import make_floor_plan, obstacle_mask  # noqa: E402
@@ -65,15 +67,29 @@ SCENARIOS: Dict[str, dict] = {
 
 # ----------------------------------------------------------------------------------------------- motion
 
+_GRAPHS: Dict[bytes, nx.Graph] = {}   # lattice graphs of the last free masks: building one takes seconds
+
+
+def lattice_graph(free: np.ndarray, k: int) -> nx.Graph:
+    """plan()'s 8-connected lattice of k x k cell blocks that are all free, built once per free mask (the same
+    graph, built in the same order, as before it was kept: the same paths)."""
+    h, w = free.shape[0] // k, free.shape[1] // k
+    coarse = free[:h * k, :w * k].reshape(h, k, w, k).all(axis=(1, 3))
+    key = np.packbits(coarse).tobytes() + np.array(coarse.shape).tobytes()
+    if key not in _GRAPHS:
+        g = nx.grid_2d_graph(w, h)              # nodes (col, row)
+        g.add_edges_from((((c, r), (c + 1, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
+        g.add_edges_from((((c + 1, r), (c, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
+        g.remove_nodes_from([(c, r) for r, c in zip(*np.nonzero(~coarse))])
+        _GRAPHS.clear()                         # one world at a time: a graph is hundreds of MB
+        _GRAPHS[key] = g
+    return _GRAPHS[key]
+
+
 def plan(free: np.ndarray, start: Tuple[float, float], goal: Tuple[float, float], res: float) -> List[Tuple]:
     """Shortest 8-connected path on a 0.1 m lattice of cells with clearance, shortcut by line of sight."""
     k = max(1, int(round(0.1 / res)))
-    h, w = free.shape[0] // k, free.shape[1] // k
-    coarse = free[:h * k, :w * k].reshape(h, k, w, k).all(axis=(1, 3))
-    g = nx.grid_2d_graph(w, h)              # nodes (col, row)
-    g.add_edges_from((((c, r), (c + 1, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
-    g.add_edges_from((((c + 1, r), (c, r + 1)) for c in range(w - 1) for r in range(h - 1)), weight=math.sqrt(2))
-    g.remove_nodes_from([(c, r) for r, c in zip(*np.nonzero(~coarse))])
+    g = lattice_graph(free, k)
     node = lambda p: (int(p[0] / (res * k)), int(p[1] / (res * k)))   # noqa: E731
     s, t = node(start), node(goal)
     if s not in g or t not in g:
@@ -204,10 +220,12 @@ def make_scenario(name: str, spec: dict, world: Grid, out_dir: str, preview: str
 
 
 def write_truth(out_dir: str, name: str, kind: str, world_seed: int, split: str, world: Grid, max_range: float,
-                entries: List[dict], mergeable: List[int], components: list, ov: dict) -> dict:
+                entries: List[dict], mergeable: List[int], components: list, ov: dict,
+                world_label: str = '') -> dict:
     """Write <out_dir>/<name>/truth.json in the shared scorer's format (mmeval-truth-1) and return it. Written last:
     its presence means the scenario is complete (bench_merge caches on it)."""
-    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': kind, 'world': f'floor_plan_{world_seed}',
+    truth = {'format': 'mmeval-truth-1', 'scenario': name, 'kind': kind,
+             'world': world_label or f'floor_plan_{world_seed}',
              'split': split, 'seed': world_seed,
              'world_frame': 'ground-truth grid of the world: origin at its lower-left corner, x right, y up (m)',
              'world_size_m': [round(world.width * RES, 6), round(world.height * RES, 6)],
@@ -239,6 +257,28 @@ GENERATED: Dict[str, dict] = {
 # four to estimate)
 for _name, _world_seed, _seed in (('large36_b', 6, 37), ('large36_c', 7, 38), ('large36_d', 8, 39)):
     GENERATED[_name] = dict(GENERATED['large36'], world_seed=_world_seed, seed=_seed)
+
+# issue #33: the fleet in many kinds of buildings (fleet_sim.buildings), each with its own overlap pattern and path
+# lengths (see patterned_robots), so that the estimation is measured on buildings it was not tuned on.
+# kind -> (pattern and its parameter, goals per robot, goal_step_m)
+BUILDING_FLEETS: Dict[str, Tuple[dict, Tuple[int, int], Tuple[float, float]]] = {
+    'hospital': ({'pattern': 'chain', 'chains': 3}, (2, 3), (4.0, 10.0)),
+    'warehouse': ({'pattern': 'star', 'hubs': 3}, (1, 2), (8.0, 16.0)),
+    'office': ({'pattern': 'clusters', 'clusters': 4}, (2, 3), (2.0, 6.0)),
+    'cave': ({'pattern': 'random'}, (2, 3), (3.0, 9.0)),
+    'pillar_hall': ({'pattern': 'clusters', 'clusters': 3}, (2, 3), (3.0, 8.0)),
+    'courtyard': ({'pattern': 'chain', 'chains': 2}, (2, 3), (4.0, 9.0)),
+    'campus': ({'pattern': 'clusters', 'clusters': 4}, (2, 3), (3.0, 7.0)),
+    'classic': ({'pattern': 'star', 'hubs': 4}, (1, 3), (5.0, 12.0)),
+    'mall': ({'pattern': 'random'}, (1, 2), (2.0, 5.0)),
+    'tunnels': ({'pattern': 'chain', 'chains': 4}, (2, 3), (3.0, 8.0)),
+    'school': ({'pattern': 'star', 'hubs': 2}, (1, 2), (6.0, 14.0)),
+    'radial': ({'pattern': 'star', 'hubs': 1}, (1, 2), (6.0, 14.0)),
+    'maze': ({'pattern': 'random'}, (3, 4), (3.0, 7.0)),
+}
+for _i, (_kind, (_pattern, _goals, _step)) in enumerate(BUILDING_FLEETS.items()):
+    GENERATED[f'{_kind}36'] = dict(GENERATED['large36'], kind=_kind, building=_kind, world_seed=100 + _i,
+                                   seed=200 + _i, goals=_goals, goal_step_m=_step, **_pattern)
 
 
 def free_with_clearance(world: Grid) -> Tuple[np.ndarray, np.ndarray]:
@@ -305,6 +345,85 @@ def random_robots(spec: dict, mask: np.ndarray, step: float, rng: np.random.Gene
     return robots
 
 
+def draw_goals(here: Tuple[int, int], n: int, mask: np.ndarray, lo: int, hi: int, rng: np.random.Generator,
+               away_from: Optional[Tuple[int, int]] = None) -> List[Tuple[int, int]]:
+    """n goal cells, each lo..hi lattice steps of driving from the one before; with away_from, each the farthest
+    from that cell of a few drawn (a robot pushing on, as a chain's does)."""
+    goals = []
+    for _ in range(n):
+        d = lattice_steps(mask, here, hi)
+        near = np.argwhere(d >= lo)
+        if not len(near):                              # a dead end smaller than lo: anywhere it can reach
+            near = np.argwhere(d > 0)
+        if not len(near):
+            break
+        picks = near[rng.integers(len(near), size=4 if away_from is not None else 1)]
+        if away_from is not None:
+            picks = picks[np.argsort(-np.hypot(*(picks - np.array(away_from)).T), kind='stable')]
+        here = tuple(picks[0])
+        goals.append(here)
+    return goals
+
+
+def near_cell(mask: np.ndarray, cell: Tuple[int, int], steps: int, rng: np.random.Generator) -> Tuple[int, int]:
+    """A random cell within `steps` of driving from cell."""
+    d = lattice_steps(mask, cell, steps)
+    near = np.argwhere(d >= 0)
+    return tuple(near[rng.integers(len(near))])
+
+
+def spread_cells(mask: np.ndarray, n: int, rng: np.random.Generator) -> List[Tuple[int, int]]:
+    """n cells far apart (farthest-point sampling from a random first one)."""
+    cells = np.argwhere(mask)
+    out = [tuple(cells[rng.integers(len(cells))])]
+    dist = np.full(len(cells), np.inf)
+    while len(out) < n:
+        dist = np.minimum(dist, np.hypot(*(cells - np.array(out[-1])).T))
+        out.append(tuple(cells[int(np.argmax(dist))]))
+    return out
+
+
+def patterned_robots(spec: dict, mask: np.ndarray, step: float, rng: np.random.Generator) -> List[Tuple]:
+    """Robots as random_robots draws them, but in an overlap pattern (spec['pattern']):
+    chain: spec['chains'] chains, each robot starting where the one before it ended and pushing on;
+    star: robots starting around spec['hubs'] hubs and driving far out from them;
+    clusters: spec['clusters'] groups of robots exploring around far-apart centres, the last robot of each group
+    driving to the next group's centre (the groups meet late, through few maps)."""
+    pattern, n = spec['pattern'], spec['n_robots']
+    if pattern == 'random':
+        return random_robots(spec, mask, step, rng)
+    lo, hi = (int(round(v / step)) for v in spec['goal_step_m'])
+    centre = lambda rc: (round(float((rc[1] + 0.5) * step), 6), round(float((rc[0] + 0.5) * step), 6))  # noqa: E731
+    n_goals = lambda: int(rng.integers(spec['goals'][0], spec['goals'][1] + 1))   # noqa: E731
+    starts_goals: List[Tuple[Tuple[int, int], List[Tuple[int, int]]]] = []
+    if pattern == 'chain':
+        per = -(-n // spec['chains'])
+        for first in spread_cells(mask, spec['chains'], rng):
+            here = first
+            for _ in range(min(per, n - len(starts_goals))):
+                goals = draw_goals(here, n_goals(), mask, lo, hi, rng, away_from=here)
+                starts_goals.append((here, goals))
+                here = goals[-1] if goals else here
+    elif pattern == 'star':
+        hubs = spread_cells(mask, spec['hubs'], rng)
+        for i in range(n):
+            start = near_cell(mask, hubs[i % len(hubs)], int(round(1.5 / step)), rng)
+            starts_goals.append((start, draw_goals(start, n_goals(), mask, lo, hi, rng, away_from=start)))
+    elif pattern == 'clusters':
+        centres = spread_cells(mask, spec['clusters'], rng)
+        for i in range(n):
+            c = i % len(centres)
+            start = near_cell(mask, centres[c], int(round(3.0 / step)), rng)
+            goals = draw_goals(start, n_goals(), mask, lo, hi, rng)
+            if i >= n - len(centres):                  # the last robot of each group: to the next group
+                goals.append(centres[(c + 1) % len(centres)])
+            starts_goals.append((start, goals))
+    else:
+        raise ValueError(f'unknown robot pattern {pattern!r}')
+    return [(*centre(s), round(float(rng.uniform(-180.0, 180.0)), 1), [centre(g) for g in goals])
+            for s, goals in starts_goals]
+
+
 def rotation_about(pivot: Sequence[float], deg: float) -> Tuple[float, float, float]:
     """The rigid transform (as a pose) that rotates by deg about pivot: q -> R q + (p - R p)."""
     a = math.radians(deg)
@@ -348,14 +467,25 @@ def healthy_components(maps: List[Grid], poses: List[Sequence[float]], world: Gr
     return sorted(([keep[j] for j in c] for c in ov['components']), key=lambda c: (-len(c), c))
 
 
+def generated_world(spec: dict) -> Grid:
+    """The world of a generated scenario: a building of fleet_sim.buildings, or fleet_sim.world's floor plan."""
+    if 'building' in spec:
+        return make_building(spec['building'], spec['world_seed'])
+    return make_floor_plan(spec['world_seed'], *spec['world_size_m'], resolution=RES)
+
+
+def world_name(spec: dict) -> str:
+    return f"{spec['building']}_{spec['world_seed']}" if 'building' in spec else f"floor_plan_{spec['world_seed']}"
+
+
 def make_generated(name: str, spec: dict, out_dir: str, preview: str) -> dict:
     """Write out_dir/name (maps and truth.json, the format of make_scenario plus broken maps); returns the truth."""
-    world = make_floor_plan(spec['world_seed'], *spec['world_size_m'], resolution=RES)
+    world = generated_world(spec)
     occ, free = free_with_clearance(world)
     mask, step = reachable_lattice(free, RES)
     layout = np.random.default_rng(spec['seed'])                    # robots and breaks
     noise = np.random.default_rng(zlib.crc32(name.encode()))         # laser noise, as make_scenario
-    robots = random_robots(spec, mask, step, layout)
+    robots = patterned_robots(dict(spec, pattern=spec.get('pattern', 'random')), mask, step, layout)
     breaks = draw_breaks(spec, layout)
     max_range = spec['max_range']
     os.makedirs(os.path.join(out_dir, name), exist_ok=True)
@@ -380,7 +510,7 @@ def make_generated(name: str, spec: dict, out_dir: str, preview: str) -> dict:
     for i, e in enumerate(entries):
         e['mergeable'] = i in mergeable
     return write_truth(out_dir, name, spec['kind'], spec['world_seed'], 'generated', world, max_range, entries,
-                       mergeable, comps, ov)
+                       mergeable, comps, ov, world_name(spec))
 
 
 def linked_healthy(truth: dict) -> List[int]:

@@ -1,0 +1,246 @@
+"""Why each mergeable map of a scenario is left out or placed wrong, read from a `merge_maps -v` log and the scorer.
+
+The estimator logs every match it judges as `pair K-S: ..., <reason or accepted>` (K: the grid matched, S: the seed
+of the group whose union it was matched against; a group merge logs the smaller group's seed as K). Replaying the
+accepted lines tells which group each map ended in; a mergeable map the result leaves out is then either alone
+(its own matches were all refused: the last refusal is its cause) or in a side group that never joined the merge
+(the cause is that group's last refused merge). A map placed wrong is reported with the match that placed it.
+
+    from merge_diagnosis import diagnose, cause_counts, replay
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import numpy as np
+
+PAIR = re.compile(r'pair (\d+)-(\d+): .*?agreement ([0-9.]+), overlap ([0-9.]+) m2, (.*)$')
+# reason text -> cause label; the first that matches (verify.refusal, pair.match_pair, tracking)
+CAUSES = [('accepted', 'accepted'), ('contradicting walls', 'contradicting walls'), ('imprecise', 'imprecise'),
+          ('ambiguous', 'ambiguous'), ('confidence', 'confidence'), ('support', 'support'),
+          ('overlap', 'overlap too small'), ('agreement', 'agreement'), ('no rigid model', 'no rigid model'),
+          ('no placed grid', 'no placed grid near it')]
+
+
+@dataclass
+class Match:
+    k: int
+    seed: int
+    agreement: float
+    overlap_m2: float
+    reason: str
+
+    @property
+    def accepted(self) -> bool:
+        return self.reason == 'accepted'
+
+
+@dataclass
+class Verdict:
+    map_index: int
+    outcome: str                 # 'left out' or 'placed wrong'
+    cause: str                   # a CAUSES label, or 'never matched'
+    detail: str
+    side_group: List[int] = field(default_factory=list)
+
+
+def cause_of(reason: str) -> str:
+    return next((label for key, label in CAUSES if key in reason), reason.split(':')[0][:40])
+
+
+def parse_matches(log_text: str) -> List[Match]:
+    out = []
+    for line in log_text.splitlines():
+        m = PAIR.search(line)
+        if m:
+            out.append(Match(int(m.group(1)), int(m.group(2)), float(m.group(3)), float(m.group(4)),
+                             m.group(5).strip()))
+    return out
+
+
+def groups_of(matches: List[Match], n: int) -> List[int]:
+    """The group (a representative index) each grid ends in, replaying the accepted matches in order."""
+    parent = list(range(n))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+    for m in matches:
+        if m.accepted and m.k < n and m.seed < n:
+            parent[root(m.k)] = root(m.seed)
+    return [root(a) for a in range(n)]
+
+
+def _summary(tries: List[Match]) -> str:
+    best = max(tries, key=lambda t: t.agreement)
+    return (f'{len(tries)} matches refused, the last: {tries[-1].reason} (overlap {tries[-1].overlap_m2:.0f} m2); '
+            f'best agreement {best.agreement:.2f} ({best.reason})')
+
+
+def diagnose(log_text: str, scored: dict, truth: dict) -> List[Verdict]:
+    """A verdict for every mergeable map the scorer does not count as placed right."""
+    n = len(truth['maps'])
+    files = [m['file'] for m in truth['maps']]
+    placements = {p['file'].rsplit('/', 1)[-1]: p for p in scored.get('placements', [])}
+    ref = (scored.get('reference') or '').rsplit('/', 1)[-1]
+    matches = parse_matches(log_text)
+    group = groups_of(matches, n)
+    verdicts = []
+    for k in truth['mergeable']:
+        p = placements.get(files[k])
+        if files[k] == ref or (p is not None and p['ok']):
+            continue
+        if p is not None:           # included, but wrong
+            how = next((m for m in reversed(matches) if m.accepted and m.k == k), None)
+            verdicts.append(Verdict(k, 'placed wrong', 'accepted wrong' if how else 'placed by its group',
+                                    f"off by {p['rot_deg']} deg, {p['trans_cells']} cells; "
+                                    + (f'accepted onto group {how.seed}: agreement {how.agreement:.2f}, '
+                                       f'overlap {how.overlap_m2:.0f} m2' if how else 'joined with its group')))
+            continue
+        included = {f.rsplit('/', 1)[-1] for f in placements} | {ref}
+        side = [a for a in range(n) if group[a] == group[k] and a != k and files[a] not in included]
+        if side:                    # placed with others, but that group never joined the merge
+            merges = [m for m in matches if not m.accepted and m.k in side + [k] and group[m.seed] != group[k]]
+            cause = cause_of(merges[-1].reason) if merges else 'never matched'
+            verdicts.append(Verdict(k, 'left out', cause,
+                                    f'in a side group of {len(side) + 1} maps; '
+                                    + (_summary(merges) if merges else 'its group was never matched'), side))
+            continue
+        joined = max((i for i, m in enumerate(matches) if m.accepted and m.k == k), default=-1)
+        own = [m for m in matches[joined + 1:] if m.k == k and not m.accepted]
+        cause = cause_of(own[-1].reason) if own else 'never matched'
+        if joined >= 0:             # it joined the merge once and was taken out again (tracking, regrouping)
+            verdicts.append(Verdict(k, 'left out', 'joined, then removed' + (f' ({cause})' if own else ''),
+                                    _summary(own) if own else 'no refusal of it logged after it joined'))
+            continue
+        verdicts.append(Verdict(k, 'left out', cause, _summary(own) if own else 'no match of it was judged'))
+    return verdicts
+
+
+def cause_counts(verdicts: List[Verdict]) -> Dict[str, int]:
+    out: Dict[str, int] = {}
+    for v in verdicts:
+        key = f'{v.outcome}: {v.cause}'
+        out[key] = out.get(key, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def verdict_lines(name: str, verdicts: List[Verdict], files: Optional[List[str]] = None) -> List[str]:
+    label = (lambda k: files[k].rsplit('.', 1)[0]) if files else str   # noqa: E731
+    return [f'- {name} {label(v.map_index)}: {v.outcome}, {v.cause}: {v.detail}' for v in verdicts]
+
+
+# ----------------------------------------------------------------------------------------------- replayed matches
+# The log cannot tell a right placement refused from a wrong one. replay() matches a map not placed right again, as
+# the estimator would: against each of the right-placed maps it overlaps most (a pair) and against the merged map
+# merge_maps wrote (the final union); each verdict is compared with the truth.
+
+def _right(est: np.ndarray, true: np.ndarray, corners: np.ndarray, cell: float) -> bool:
+    """Within the scorer's tolerance: 1.5 degrees, 3 cells at the corners of the map's known box."""
+    rot = abs(math.degrees(math.remainder(math.atan2(est[1, 0], est[0, 0]) - math.atan2(true[1, 0], true[0, 0]),
+                                          2 * math.pi)))
+    pts = np.c_[corners, np.ones(len(corners))].T
+    return rot <= 1.5 and float(np.max(np.hypot(*((est @ pts) - (true @ pts))[:2]))) <= 3 * cell + 1e-9
+
+
+def _verdict(m, true: np.ndarray, corners: np.ndarray, cell: float) -> str:
+    if m.transform_m is None:
+        return m.reason or 'no placement'
+    right = 'right' if _right(m.transform_m, true, corners, cell) else 'WRONG'
+    return f"{'accepted' if m.accepted else 'refused'} {right} (agreement {m.best.agreement:.2f}" + \
+        (f', {m.reason}' if not m.accepted else '') + ')'
+
+
+REPLAYED = {  # what the matches again say, most telling first
+    'union right': 'the final union accepts it, right (left out by the order of the growth)',
+    'pair right': 'a pair accepts it, right; the final union refuses it',
+    'wrong': 'accepted again but wrong (a pair or the union)',
+    'refused': 'refused by its pairs and by the final union',
+    'no pair': 'no right-placed map overlaps it; the final union refuses it',
+}
+
+
+def replayed_label(outcomes: List[tuple]) -> str:
+    """outcomes: (against, accepted, right) for each match again; against is 'pair' or 'union'."""
+    if any(a == 'union' and acc and ok for a, acc, ok in outcomes):
+        return REPLAYED['union right']
+    if any(a == 'pair' and acc and ok for a, acc, ok in outcomes):
+        return REPLAYED['pair right']
+    if any(acc and not ok for _, acc, ok in outcomes):
+        return REPLAYED['wrong']
+    return REPLAYED['refused'] if any(a == 'pair' for a, _, _ in outcomes) else REPLAYED['no pair']
+
+
+def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: List[Verdict],
+           pairs: int = 2) -> List[tuple]:
+    """(line, label of REPLAYED) per verdict: its map matched again against its best-overlapping right-placed maps
+    and the final union."""
+    from multirobot_map_merge import transforms as tf
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair
+    from multirobot_map_merge.estimation.settings import EstimationSettings
+    from multirobot_map_merge.mapio import load_map
+    s = EstimationSettings()
+    ms = truth['maps']
+    files = [m['file'] for m in ms]
+    ok = {p['file'].rsplit('/', 1)[-1] for p in scored['placements'] if p['ok']} | \
+        {(scored.get('reference') or '').rsplit('/', 1)[-1]}
+    pose = [tf.rigid(*m['pose']) for m in ms]
+    grids = {k: load_map(str(folder / files[k])) for k in range(len(ms))}
+    res = max(min(g.resolution for g in grids.values()), s.min_work_resolution)
+    prepared: Dict[int, object] = {}
+
+    def prep(k: int):
+        if k not in prepared:
+            prepared[k] = prepare(grids[k], res, s.feature)
+        return prepared[k]
+    union_line = ''
+    merged_yaml, result_json = result_dir / 'merged.yaml', result_dir / 'result.json'
+    union = merged_from_world = None
+    ref = (scored.get('reference') or '').rsplit('/', 1)[-1]
+    if merged_yaml.is_file() and ref in files:
+        est = {m['file'].rsplit('/', 1)[-1]: m.get('transform') for m in json.loads(result_json.read_text())['maps']}
+        r = files.index(ref)
+        t = est[ref]
+        ref_pose = ([ms[r]['pose']] + ms[r].get('alt_poses', []))[scored.get('reference_pose', 0)]
+        merged_from_world = tf.rigid(t['x'], t['y'], t['yaw']) @ tf.inverse(tf.rigid(*ref_pose))
+        union = prepare(load_map(str(merged_yaml)), res, s.feature)
+    elif not merged_yaml.is_file():
+        union_line = '; no merged map to match against'
+    lines = []
+    for v in verdicts:
+        k = v.map_index
+        corners = np.asarray(ms[k]['known_bbox'], float)
+        cell = ms[k]['resolution']
+        near = sorted((j for j in range(len(ms)) if j != k and files[j] in ok and not ms[j]['broken']
+                       and truth['overlap']['shared_m2'][k][j] >= truth['overlap']['min_shared_m2']
+                       and truth['overlap']['fraction'][k][j] >= truth['overlap']['min_fraction']),
+                      key=lambda j: -truth['overlap']['shared_m2'][k][j])[:pairs]
+        said, outcomes = [], []
+        tries = [('pair', j, prep(j), tf.inverse(pose[j]) @ pose[k]) for j in near]
+        if union is not None:
+            tries.append(('union', len(ms), union, merged_from_world @ pose[k]))   # an index no map has
+        for against, j, target, true in tries:
+            m = match_pair(k, j, prep(k), target, s, onto_union=against == 'union')
+            right = m.transform_m is not None and _right(m.transform_m, true, corners, cell)
+            outcomes.append((against, m.accepted, right))
+            said.append((f"pair with {files[j][:-5]} ({truth['overlap']['shared_m2'][k][j]:.0f} m2)"
+                         if against == 'pair' else 'the final union') + f': {_verdict(m, true, corners, cell)}')
+        if not near:                # what holds it to the merge in the truth: its group's best link
+            ov = truth['overlap']
+            link = max(((ov['shared_m2'][a][j], ov['fraction'][a][j], a, j) for a in v.side_group + [k]
+                        for j in range(len(ms)) if files[j] in ok), default=None)
+            if link is not None:
+                said.append(f'its group meets the merge at most by {files[link[2]][:-5]}-{files[link[3]][:-5]}, '
+                            f'{link[0]:.0f} m2 ({100 * link[1]:.0f} %)')
+        label = replayed_label(outcomes)
+        lines.append((f"  - {files[k][:-5]} again ({label}): {'; '.join(said) or 'no right-placed map overlaps it'}"
+                      f"{union_line}", label))
+    return lines

@@ -1,0 +1,61 @@
+"""bench/merge_diagnosis.py: why each mergeable map is left out or placed wrong, from a merge_maps -v log."""
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'bench'))
+from merge_diagnosis import cause_counts, diagnose  # noqa: E402
+
+LINE = ('DEBUG pair {k}-{s}: 120 descriptor matches (9 inliers), 2000 wall correspondences (1700 inliers), '
+        'confidence 2.5, agreement {a}, overlap {o} m2, {why}')
+
+
+def log(*rows) -> str:
+    return '\n'.join(LINE.format(k=k, s=s, a=a, o=o, why=why) for k, s, a, o, why in rows)
+
+
+def scenario(n: int, mergeable, placements, reference='map_00.yaml'):
+    truth = {'maps': [{'file': f'map_{i:02d}.yaml'} for i in range(n)], 'mergeable': mergeable}
+    scored = {'reference': f'/x/{reference}', 'placements': [
+        {'file': f'/x/map_{i:02d}.yaml', 'ok': ok, 'rot_deg': 0.0 if ok else 90.0, 'trans_cells': 0.0 if ok else 40.0}
+        for i, ok in placements]}
+    return truth, scored
+
+
+def test_each_map_not_placed_right_gets_its_cause():
+    # 0 the reference, 1 placed right, 2 placed wrong, 3 alone and refused, 4 and 5 a side group refused as one,
+    # 6 joined and was taken out again
+    text = log((1, 0, 0.99, 80, 'accepted'),
+               (2, 0, 1.0, 60, 'accepted'),
+               (3, 0, 0.95, 40, 'ambiguous: another placement agrees 0.95 with support 900 vs 950'),
+               (3, 0, 0.86, 70, 'agreement 0.86 < 0.91'),
+               (5, 4, 0.99, 90, 'accepted'),
+               (4, 0, 0.93, 50, '60 contradicting walls well inside both maps, more than 1% of 1800 agreeing'),
+               (6, 0, 0.97, 50, 'accepted'))
+    truth, scored = scenario(7, [0, 1, 2, 3, 4, 5, 6], [(1, True), (2, False)])
+    verdicts = {v.map_index: v for v in diagnose(text, scored, truth)}
+    assert sorted(verdicts) == [2, 3, 4, 5, 6]
+    assert verdicts[2].outcome == 'placed wrong' and verdicts[2].cause == 'accepted wrong'
+    assert verdicts[3].outcome == 'left out' and verdicts[3].cause == 'agreement'   # the last refusal counts
+    assert verdicts[4].cause == verdicts[5].cause == 'contradicting walls'
+    assert verdicts[4].side_group == [5] and verdicts[5].side_group == [4]
+    assert verdicts[6].cause == 'joined, then removed'
+    assert cause_counts(list(verdicts.values()))['left out: contradicting walls'] == 2
+
+
+def test_maps_placed_right_or_not_mergeable_are_not_reported():
+    text = log((1, 0, 0.99, 80, 'accepted'), (2, 0, 0.5, 10, 'agreement 0.50 < 0.91'))
+    truth, scored = scenario(3, [0, 1], [(1, True)])
+    assert diagnose(text, scored, truth) == []
+    truth, scored = scenario(3, [0, 1, 2], [(1, True)])
+    (v,) = diagnose(text, scored, truth)
+    assert (v.map_index, v.cause) == (2, 'agreement')
+
+
+def test_replayed_labels_say_which_match_would_place_the_map():
+    from merge_diagnosis import REPLAYED, replayed_label
+    assert replayed_label([('pair', True, True), ('union', True, True)]) == REPLAYED['union right']
+    assert replayed_label([('pair', False, True), ('pair', True, True), ('union', False, False)]) == \
+        REPLAYED['pair right']
+    assert replayed_label([('pair', True, False), ('union', False, True)]) == REPLAYED['wrong']
+    assert replayed_label([('pair', False, True), ('union', False, False)]) == REPLAYED['refused']
+    assert replayed_label([('union', False, False)]) == REPLAYED['no pair']
