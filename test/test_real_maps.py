@@ -13,8 +13,8 @@ from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.polish import polish
 from multirobot_map_merge.estimation.refine import icp
 from multirobot_map_merge.estimation.settings import EstimationSettings
-from multirobot_map_merge.estimation.verify import (landing_box, movable_pixels, plausible, refusal,
-                                                    too_contradicted, verify)
+from multirobot_map_merge.estimation.verify import (free_standing, landing_box, plausible, refusal, too_contradicted,
+                                                    verify)
 from multirobot_map_merge.mapio import load_map
 
 # four robots of the CSAIL 3rd floor; maps 1 and 2 share 181 m2 (40 % of the smaller)
@@ -82,20 +82,20 @@ def _floor(shape=(120, 120)) -> np.ndarray:
 def test_a_small_blob_seen_amid_free_floor_is_movable():
     grid = _floor()
     grid[50:54, 60:63] = 100                 # a person's legs, a chair: free floor all around
-    deep = grid == 100
-    assert movable_pixels(deep, grid, 1.0 / 0.05) == int(deep.sum())
+    walls = grid == 100
+    assert free_standing(walls, grid, 1.0 / 0.05).sum() == walls.sum()
 
 
 def test_a_short_wall_face_with_the_unknown_behind_it_is_not_movable():
     grid = _floor()
     grid[40:80, 10] = 100                    # the room's west wall: free in front, unknown behind
-    deep = np.zeros(grid.shape, bool)
-    deep[55:62, 10] = True                   # 35 cm of it contradicts the other map
-    assert movable_pixels(deep, grid, 1.0 / 0.05) == 0
+    assert not free_standing(grid == 100, grid, 1.0 / 0.05).any()
+    short = np.zeros(grid.shape, bool)
+    short[55:62, 10] = True                  # 35 cm of it, alone: still a face with the unknown behind it
+    assert not free_standing(short, grid, 1.0 / 0.05).any()
 
 
 def test_a_long_wall_amid_free_floor_is_not_movable():
     grid = _floor()
     grid[60, 20:80] = 100                    # a 3 m partition across the room
-    deep = grid == 100
-    assert movable_pixels(deep, grid, 1.0 / 0.05) == 0
+    assert not free_standing(grid == 100, grid, 1.0 / 0.05).any()

@@ -236,7 +236,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         groups = search_grow(grower, groups, preferred_reference)
         chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
         grower.confirm_searches(chosen)
-        grower.evict_contradicted(chosen, [k for k in present if k not in chosen.members])
+        if grower.evict_contradicted(chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
+            chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

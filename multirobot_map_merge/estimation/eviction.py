@@ -29,8 +29,8 @@ if TYPE_CHECKING:
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.eviction')
 
 MIN_AGREEING = 2   # members that must agree with a map left out for its contradiction of one other to count
-MIN_VOTES = 2      # maps left out that must single out the same member, unless MANY_AGREEING agree with each
-MANY_AGREEING = 3
+MIN_VOTES = 2      # maps left out that must single out the same member (one map's placement may be wrong itself),
+MANY_AGREEING = 3  # unless that many members agree with the one map that does
 
 
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,

@@ -328,17 +328,21 @@ class Grower:
                                       frozenset(self.names[m] for m in group.members)))
             todo = [c.k for c in failed if c is not worst]
 
-    def evict_contradicted(self, group: Group, unplaced: List[int]) -> None:
-        """Take out of the group a member that maps left out contradict while they agree with the other members
-        (eviction.py: a broken map placed by one of its parts), and match those maps again onto what remains. The
-        member taken out stays out of this estimation."""
+    def evict_contradicted(self, group: Group, groups: List[Group], unplaced: List[int]) -> bool:
+        """Take out of the merge (`group`, one of `groups`) a member that the maps outside it contradict while they
+        agree with the other members (eviction.py: a broken map placed by one of its parts, or a map accepted at
+        the edge of the rules), then grow it again with the grids in no group (`unplaced`) and match the other
+        groups onto it. The member taken out stays out of this estimation. Whether one was taken out (the merge may
+        then be another object of `groups`: merge_groups keeps the preferred reference's group)."""
+        evicted = False
         for _ in range(MAX_PASSES):
-            onto = {k: self.refused_onto[(k, group.seed)] for k in unplaced if (k, group.seed) in self.refused_onto}
-            singled = contradicted_members(unplaced, onto, group.seed, group.members, group.union.footprints,
+            outside = [k for k, p in enumerate(self.prepared) if p is not None and k not in group.members]
+            onto = {k: self.refused_onto[(k, group.seed)] for k in outside if (k, group.seed) in self.refused_onto}
+            singled = contradicted_members(outside, onto, group.seed, group.members, group.union.footprints,
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
                                            (self.reference,), self.s)
             if not singled:
-                return
+                break
             j = singled[0]
             log.debug('grid %d leaves the merge: maps left out agree with the other members and contradict it', j)
             if j == group.seed:
@@ -349,7 +353,23 @@ class Grower:
             group.leave(j)
             self.contradicting.add(j)
             self.refused[j] = PairMatch(j, group.seed, reason='maps the other members agree with contradict it')
-            self.grow(group, unplaced, search=False)
+            evicted = True
+            # the maps outside matched again one by one (those of other groups too: the member taken out may have
+            # been what their group contradicted), then what is left of the other groups as groups
+            again = [k for k in outside if k != j and k not in group.members]
+            self.grow(group, again, search=False)
+            for other in [g for g in groups if g is not group]:
+                joined = [k for k in other.members if k in group.members]
+                if other.seed in group.members:
+                    groups.remove(other)
+                    unplaced.extend(k for k in other.members if k not in group.members)
+                else:
+                    for k in joined:
+                        other.leave(k)
+            unplaced[:] = [k for k in unplaced if k not in group.members]
+            self.merge_groups(groups, unplaced)
+            group = max(groups, key=lambda g: (len(g.members), self.reference in g.members))
+        return evicted
 
     def _restate_refused(self, old_seed: int, new_seed: int, old_to_new: np.ndarray) -> None:
         """The matches refused onto a group whose frame becomes another's (the group is absorbed, or reseeded),

@@ -180,31 +180,35 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
             * support:
         # told apart only where it decides: below, the placement passes either way; above, it fails either way
         size_px = s.movable_size_m / pi.resolution
-        result.movable_conflicts = movable_pixels(deep_i, wi, size_px) + movable_pixels(deep_j, wj, size_px)
+        # the contradicting walls that are things standing free in their own map (judged on its walls in the
+        # common area: a piece of a longer wall is structure however little of it contradicts)
+        result.movable_conflicts = int((deep_i & free_standing(walls_i, wi, size_px)).sum()
+                                       + (deep_j & free_standing(walls_j, wj, size_px)).sum())
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
     return result
 
 
-def movable_pixels(deep: np.ndarray, grid: np.ndarray, size_px: float, ring_px: int = RING_PX) -> int:
-    """How many of one map's contradicting wall pixels `deep` lie in small pieces that this map (`grid`, the same
-    pixels) saw with free space all around: things that move.
+def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: int = RING_PX) -> np.ndarray:
+    """The pixels of `walls` (one map's, in its `grid`, the same pixels) that lie in small pieces this map saw with
+    free floor all around: things that stand free, and may move.
 
     Between two passes of a real building people walk and chairs and carts move: one map has a small blob where
     the other saw free floor, and it saw free floor around the blob. A wrong placement instead puts walls where the
     other map saw floor, long ones, or short pieces of wall faces with the unknown behind them (glimpsed through a
     door); neither is free all around. Pieces a pixel apart count as one.
     """
-    rows, cols = np.nonzero(deep)
+    out = np.zeros(walls.shape, bool)
+    rows, cols = np.nonzero(walls)
     if rows.size == 0:
-        return 0
-    # only around the contradicting pixels: the common area of a map and a union is large
+        return out
+    # only around the pixels asked about: the common area of a map and a union is large
     margin = ring_px + 2
     r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    deep, grid = deep[r0:rows.max() + margin + 1, c0:cols.max() + margin + 1], \
-        grid[r0:rows.max() + margin + 1, c0:cols.max() + margin + 1]
-    joined = cv2.dilate(deep.view(np.uint8), np.ones((3, 3), np.uint8))
+    r1, c1 = rows.max() + margin + 1, cols.max() + margin + 1
+    walls, grid = walls[r0:r1, c0:c1], grid[r0:r1, c0:c1]
+    joined = cv2.dilate(walls.view(np.uint8), np.ones((3, 3), np.uint8))
     count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
     # the joined piece's box less the pixel the dilation added on each side: its extent, a line's length
     extent = np.hypot(stats[:, cv2.CC_STAT_WIDTH] - 2, stats[:, cv2.CC_STAT_HEIGHT] - 2)
@@ -213,9 +217,10 @@ def movable_pixels(deep: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     around[joined > 0] = 0
     ring = np.bincount(around.ravel(), minlength=count)
     free = np.bincount(around.ravel(), weights=(grid == 0).ravel(), minlength=count)
-    movable = (extent <= size_px) & (free >= MOVABLE_FREE_SHARE * np.maximum(ring, 1))
-    movable[0] = False   # the background
-    return int(movable[labels[deep]].sum())
+    small = (extent <= size_px) & (free >= MOVABLE_FREE_SHARE * np.maximum(ring, 1))
+    small[0] = False   # the background
+    out[r0:r1, c0:c1] = walls & small[labels]
+    return out
 
 
 def plausible(c: Placement, s: EstimationSettings) -> bool:
