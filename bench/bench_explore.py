@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -59,7 +60,8 @@ class Explorer:
         self.p = params
         self.cm = Costmap(params.probability_map, params.free_threshold, params.occupied_threshold,
                           by_threshold=True)
-        self.search = FrontierSearch(self.cm, params.potential_scale, params.gain_scale, params.min_frontier_size)
+        self.search = FrontierSearch(self.cm, params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                     params.path_distance)
         self.logic = GoalLogic(params.progress_timeout)
         self.team = TeamGoals(name)
         self.goal: Optional[Tuple[float, float]] = None     # map frame
@@ -278,6 +280,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--world-width', type=float, default=24.0, help='building width, m (default 24, the demo)')
     ap.add_argument('--world-height', type=float, default=16.0, help='building height, m (default 16)')
     ap.add_argument('--limit', type=float, default=3000.0, help='sim seconds per run before giving up')
+    ap.add_argument('--set', nargs='+', default=[], metavar='NAME=VALUE',
+                    help="override explore parameters of the demo's set, e.g. path_distance=false")
     ap.add_argument('--json', help='write every run to this file: a list of {robots, coordinated, seed, '
                     'world_width, world_height, t95_s (null: not reached)}')
     ap.add_argument('--markdown', help='also write the tables to this file')
@@ -288,9 +292,18 @@ def main(argv: Optional[List[str]] = None) -> int:
     if min(args.robots) < 1:
         ap.error('--robots: fleet sizes must be at least 1')
     configs = parse_configs(args.robots, args.coordination, args.configs)
-    params = ExploreParams(**DEMO_EXPLORE)
+    explore = dict(DEMO_EXPLORE)
+    for item in args.set:
+        name, _, value = item.partition('=')
+        if name not in ExploreParams.__dataclass_fields__ or not value:
+            ap.error(f'--set: {item!r} is not NAME=VALUE of an explore parameter')
+        explore[name] = yaml.safe_load(value)
+    try:
+        params = ExploreParams.from_mapping(explore)
+    except ValueError as e:
+        ap.error(str(e))
     size = (args.world_width, args.world_height)
-    print(f'explore params: {DEMO_EXPLORE}; building {size[0]:g} m x {size[1]:g} m, floor plan seed '
+    print(f'explore params: {explore}; building {size[0]:g} m x {size[1]:g} m, floor plan seed '
           f'{args.world_seed}; seeds {args.seeds}', flush=True)
     results: Dict[Config, List[Dict[str, Any]]] = {}
     runs: List[Dict[str, Any]] = []

@@ -35,7 +35,8 @@ class PlanningLoop:
                  throttle: Throttle, marker_pub: Optional[rospy.Publisher]) -> None:
         self.p = params
         self.costmap = costmap
-        self.search = FrontierSearch(costmap, params.potential_scale, params.gain_scale, params.min_frontier_size)
+        self.search = FrontierSearch(costmap, params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                     params.path_distance)
         self.logic = GoalLogic(params.progress_timeout, params.return_to_init)
         self._robot_pose = robot_pose
         self._throttle = throttle

@@ -1,0 +1,100 @@
+"""explore with ~path_distance: frontiers ranked by their distance along free space, and the progress clock of a
+goal area that the robot leaves and comes back to (the two causes of goal thrashing in large buildings)."""
+import numpy as np
+import pytest
+
+from explore.costmap import FREE_SPACE, LETHAL_OBSTACLE, NO_INFORMATION
+from explore.frontier_search import Frontier, frontier_cost, search_frontiers
+from explore.goal_logic import GoalLogic, PlanAction
+
+RES = 0.5
+
+
+def wall_between():
+    """A room split by a wall with a gap at its far end (x = 18); the robot at x = 2 just below the wall.
+    Above the wall, near in a straight line but far round the wall: a frontier at the left (x = 0..2, y = 8);
+    below it, farther in a straight line but straight ahead: a frontier at the right end (x = 19, y = 1..3)."""
+    d = np.full((9, 20), LETHAL_OBSTACLE, np.uint8)
+    d[1:8, 1:19] = FREE_SPACE
+    d[4, 1:17] = LETHAL_OBSTACLE          # the wall; the gap is x = 17, 18
+    d[8, 1:4] = NO_INFORMATION             # frontier above the wall, near the robot's x
+    d[1:4, 19] = NO_INFORMATION            # frontier below the wall, at the far right
+    return d
+
+
+def by_position(found):
+    return {('up' if f.initial[1] > 3.0 else 'right'): f for f in found}
+
+
+def test_straight_line_is_the_default():
+    found = by_position(search_frontiers(wall_between(), RES, (0.0, 0.0), (2, 3), 1.0, 0.0, 0.0))
+    robot = np.array([2.5 * RES, 3.5 * RES])
+    for f in found.values():
+        assert f.min_distance == pytest.approx(np.hypot(*(f.points - robot).T).min())
+    assert found['up'].min_distance < found['right'].min_distance
+
+
+def test_path_distance_goes_round_the_wall():
+    d = wall_between()
+    found = search_frontiers(d, RES, (0.0, 0.0), (2, 3), 1.0, 0.0, 0.0, path_distance=True)
+    f = by_position(found)
+    # round the wall: right along y = 3 to x = 17, up to y = 7, back left: far more than the straight line
+    assert f['up'].min_distance >= RES * ((17 - 2) + (7 - 3) + (17 - 3)) - 1e-9
+    # 4-connected steps: the right frontier's cell at y = 3 lies 17 steps straight ahead, but it is the seed
+    # (left out of min_distance, as the original); the next one, at y = 2, one step more
+    assert f['right'].min_distance == pytest.approx(RES * (19 - 2 + 1))
+    assert found[0] is f['right']                  # nearest along free space first (distance only)
+    assert all(g.cost == frontier_cost(g.min_distance, g.size, RES, 1.0, 0.0) for g in found)
+    # the same groups, sizes and centroids as the straight-line search: only distances differ
+    plain = by_position(search_frontiers(d, RES, (0.0, 0.0), (2, 3), 1.0, 0.0, 0.0))
+    for k in f:
+        assert (f[k].size, f[k].centroid) == (plain[k].size, plain[k].centroid)
+        assert tuple(f[k].middle) in {tuple(p) for p in f[k].points}
+
+
+def test_path_distance_shrinks_as_the_robot_drives_round():
+    """Driving towards the far side of the wall brings the frontier above it nearer along free space (in a
+    straight line it first gets farther): the choice does not flip back and forth."""
+    d = wall_between()
+    dist = [by_position(search_frontiers(d, RES, (0.0, 0.0), (x, 3), 1.0, 0.0, 0.0, path_distance=True))
+            ['up'].min_distance for x in (2, 6, 10, 14)]
+    assert dist == sorted(dist, reverse=True) and dist[0] > dist[-1]
+
+
+def frontier(x, y, min_distance, cost=0.0):
+    return Frontier(size=10, min_distance=min_distance, cost=cost, initial=(x, y), centroid=(x, y), middle=(x, y),
+                    points=np.zeros((9, 2)))
+
+
+def test_switching_back_and_forth_does_not_restart_the_clock():
+    """Two goals chosen in turn, neither getting nearer: the original restarts the timeout at every switch and
+    never gives up; here each area's clock runs while it is pursued, so one of them is blacklisted."""
+    logic = GoalLogic(progress_timeout=30.0)
+    a, b = frontier(2.0, 2.0, 3.0), frontier(9.0, 9.0, 5.0)
+    t, blacklisted = 0.0, []
+    for k in range(60):
+        res = logic.plan([a, b] if k % 2 == 0 else [b, a], RES, t)
+        blacklisted += res.blacklisted
+        if blacklisted:
+            break
+        assert res.action is PlanAction.SEND_GOAL
+        t += 4.0
+    assert len(blacklisted) == 1 and res.action is PlanAction.SEND_GOAL    # the other one is pursued alone now
+    assert 60.0 <= t <= 72.0         # 30 s of pursuit of each, plus one plan period
+    kept = res.target
+    assert all(logic.plan([a, b], RES, t + dt).target == kept for dt in (2.0, 20.0))   # its clock starts afresh
+
+
+def test_an_area_left_for_longer_than_the_timeout_starts_afresh():
+    logic = GoalLogic(progress_timeout=30.0)
+    a, b = frontier(2.0, 2.0, 3.0), frontier(9.0, 9.0, 5.0, cost=-1.0)
+    logic.plan([a], RES, 0.0)
+    logic.plan([a], RES, 25.0)                     # 25 s on a without progress
+    for t in range(27, 90, 2):                     # then b for a long while (getting nearer)
+        assert logic.plan([b], RES, float(t)).blacklisted == []
+        b = frontier(9.0, 9.0, b.min_distance - 0.01, cost=-1.0)
+    # back to a after more than progress_timeout: a new pursuit, not 25 s already used
+    assert logic.plan([a], RES, 100.0).action is PlanAction.SEND_GOAL
+    assert logic.plan([a], RES, 125.0).action is PlanAction.KEEP_GOAL
+    res = logic.plan([a], RES, 131.0)
+    assert res.blacklisted == [a.centroid]
