@@ -32,12 +32,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from explore.costmap import Costmap  # noqa: E402
-from explore.coverage import explored_mask, reachable_mask  # noqa: E402
+from explore.coverage import KnownRaster, reachable_mask  # noqa: E402
 from explore.frontier_search import FrontierSearch  # noqa: E402
 from explore.goal_logic import ABORTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty  # noqa: E402
 from explore.params import ExploreParams  # noqa: E402
-from explore.team import TeamGoals, drop_explored_by_team  # noqa: E402
+from explore.team import TeamGoals, costmap_known_at, drop_explored_by_team, team_frontiers  # noqa: E402
 from fleet_sim.mapping import compose, relative_pose  # noqa: E402
+from multirobot_map_merge import transforms as tf  # noqa: E402
+from multirobot_map_merge.grid import Grid  # noqa: E402
 from fleet_sim.params import FleetSimParams  # noqa: E402
 from fleet_sim.sim import FleetSim  # noqa: E402
 
@@ -87,7 +89,7 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
                                   world_width=world_size[0], world_height=world_size[1]))
     robots, world = sim.robots, sim.world
     reach = reachable_mask(world, [r.start[:2] for r in robots])
-    everywhere = np.ones(world.data.shape, bool)
+    raster = KnownRaster.on_grid(world)
     to_world_cell = np.linalg.inv(world.cell_to_map())
     explorers = [Explorer(r.ns, params) for r in robots]
     period = 1.0 / params.planner_frequency
@@ -96,6 +98,8 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
     next_measure = 0.0
     known: List[np.ndarray] = [np.zeros(world.data.shape, bool) for _ in robots]   # per robot, world cells
     team_known: List[Optional[np.ndarray]] = [None] * n_robots    # what merged teammates know, world cells
+    values: List[np.ndarray] = []                                  # per robot, its map's occupancy on world cells
+    team_map: List[Optional[Grid]] = [None] * n_robots            # the merged map of each robot's team, world frame
     merged_with: List[set] = [set() for _ in robots]
     wall0 = time.perf_counter()
 
@@ -128,12 +132,19 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             if team_known[i] is not None:
                 frontiers = drop_explored_by_team(frontiers, ex.cm.data, ex.cm.resolution,
                                                   (ex.cm.origin_x, ex.cm.origin_y), known_at_for(i))
+            extra = []
+            if team_map[i] is not None and ex.logic.select(frontiers, ex.cm.resolution) is None:
+                extra = team_frontiers(team_map[i], ex.cm.table, robot.pose[:2], tf.inverse(tf.rigid(*robot.start)),
+                                       params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                       params.path_distance,
+                                       costmap_known_at(ex.cm.data, ex.cm.resolution, (ex.cm.origin_x, ex.cm.origin_y)))
             for j, other in enumerate(explorers):
                 if j != i and j in merged_with[i]:
                     ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t)
             active = ex.team.active(sim.t, world_goal(i), ex.chosen_at, params.team_radius)
             goals = [relative_pose(robot.start, (g.point[0], g.point[1], 0.0))[:2] for g in active]
-            frontiers = apply_team_penalty(frontiers, goals, params.team_radius)
+            frontiers = (apply_team_penalty(frontiers, goals, params.team_radius)
+                         + apply_team_penalty(extra, goals, params.team_radius))
         result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t)
         ex.timed_out += len(result.blacklisted)
         if result.action is PlanAction.STOP:
@@ -170,6 +181,14 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         for i in range(n_robots):
             merged_with[i] = {j for j in range(n_robots) if j != i and find(j) == find(i)}
             team_known[i] = np.logical_or.reduce([known[j] for j in merged_with[i]]) if merged_with[i] else None
+            if merged_with[i]:
+                team = [values[j] for j in sorted(merged_with[i] | {i})]
+                occupied = np.logical_or.reduce([v >= 50 for v in team])
+                free = np.logical_or.reduce([(v >= 0) & (v < 50) for v in team])
+                merged = np.where(occupied, 100, np.where(free, 0, -1)).astype(np.int8)
+                team_map[i] = Grid(merged, world.resolution, world.origin, 'world')
+            else:
+                team_map[i] = None
 
     next_merge = 0.0
     while sim.t < limit:
@@ -178,7 +197,8 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             done(i, o.status, o.text)
         measure = sim.t + 1e-9 >= next_measure
         if measure or (coordinated and sim.t + 1e-9 >= next_merge):
-            known = [explored_mask(world, everywhere, [(r.mapper.to_grid(), r.start)]) for r in robots]
+            values = [raster.values(r.mapper.to_grid(), r.start) for r in robots]
+            known = [v >= 0 for v in values]
         if coordinated and sim.t + 1e-9 >= next_merge:
             next_merge += MERGE_PERIOD
             merge()
@@ -194,7 +214,7 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         if measure or finished:
             next_measure += 1.0
             if finished:
-                known = [explored_mask(world, everywhere, [(r.mapper.to_grid(), r.start)]) for r in robots]
+                known = [raster.known(r.mapper.to_grid(), r.start) for r in robots]
             share = float(np.count_nonzero(np.logical_or.reduce(known) & reach)) / max(int(reach.sum()), 1)
             if share >= TARGET:
                 t_target = sim.t

@@ -12,15 +12,15 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from multirobot_map_merge.grid import Grid
 
-from .costmap import FREE_SPACE, NO_INFORMATION
-from .frontier_search import Frontier
+from .costmap import FREE_SPACE, NO_INFORMATION, translate
+from .frontier_search import Frontier, search_frontiers
 
 Point2 = Tuple[float, float]
 
@@ -144,5 +144,56 @@ def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
         ok = (c >= 0) & (c < grid.width) & (r >= 0) & (r < grid.height)
         out = np.zeros(len(pts), bool)
         out[ok] = grid.data[r[ok], c[ok]] >= 0
+        return out
+    return known_at
+
+
+# --- the team map's frontiers -----------------------------------------------------------------------------------------
+# A robot whose own frontiers are all mapped by teammates (or blacklisted) would stop while the team still has
+# unexplored space it cannot see in its own map; it takes the frontiers of the team's merged map instead. A team
+# frontier that the robot's own map already knows beyond (the merged map lags behind, or places a map wrongly) is
+# not trusted: its own map is what it saw.
+
+
+def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_from_team: np.ndarray,
+                   potential_scale: float, gain_scale: float, min_frontier_size: float, path_distance: bool,
+                   own_known_at: Optional[KnownAt] = None) -> List[Frontier]:
+    """Frontiers of the team map ``grid`` (occupancy, cost bytes through ``table``) searched from the robot's
+    position there, in cost order, expressed in the robot's map frame (``own_from_team``: 3x3); those whose far
+    side ``own_known_at`` (points of the robot's map frame) mostly knows are left out."""
+    if grid.is_empty() or grid.resolution <= 0.0:
+        return []
+    res = grid.resolution
+    to_cell = np.linalg.inv(grid.cell_to_map())
+    c, r, _ = to_cell @ np.array([robot_in_team[0], robot_in_team[1], 1.0])
+    if not (0 <= c < grid.width and 0 <= r < grid.height):
+        return []
+    data = translate(grid.data, table).reshape(grid.data.shape)
+    # searched in the grid's own axes (origin at its corner cell), then moved into the robot's map frame
+    found = search_frontiers(data, res, (0.0, 0.0), (int(c), int(r)), potential_scale, gain_scale,
+                             min_frontier_size, path_distance)
+    m = own_from_team @ grid.cell_to_map() @ np.diag([1.0 / res, 1.0 / res, 1.0])
+
+    def move(p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, float).reshape(-1, 2)
+        return p @ m[:2, :2].T + m[:2, 2]
+    out = []
+    for f in found:
+        points = move(f.points)
+        if own_known_at is not None and len(points) and own_known_at(points).mean() >= KNOWN_BY_TEAM:
+            continue
+        out.append(replace(f, points=points, centroid=tuple(move(f.centroid)[0]), initial=tuple(move(f.initial)[0]),
+                           middle=tuple(move(f.middle)[0])))
+    return out
+
+
+def costmap_known_at(data: np.ndarray, resolution: float, origin: Point2) -> KnownAt:
+    """known_at() of a cost grid (the robot's own map): points on a cell other than NO_INFORMATION."""
+    def known_at(pts: np.ndarray) -> np.ndarray:
+        c = np.floor((pts[:, 0] - origin[0]) / resolution).astype(np.int64)
+        r = np.floor((pts[:, 1] - origin[1]) / resolution).astype(np.int64)
+        ok = (c >= 0) & (c < data.shape[1]) & (r >= 0) & (r < data.shape[0])
+        out = np.zeros(len(pts), bool)
+        out[ok] = data[r[ok], c[ok]] != NO_INFORMATION
         return out
     return known_at

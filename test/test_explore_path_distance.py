@@ -1,11 +1,17 @@
-"""explore with ~path_distance: frontiers ranked by their distance along free space, and the progress clock of a
-goal area that the robot leaves and comes back to (the two causes of goal thrashing in large buildings)."""
+"""explore in large buildings: ~path_distance (frontiers ranked by their distance along free space), the progress
+clock of a goal area that the robot leaves and comes back to (the two causes of goal thrashing), and the team map's
+frontiers for a robot that has none of its own left."""
+import math
+
 import numpy as np
 import pytest
 
-from explore.costmap import FREE_SPACE, LETHAL_OBSTACLE, NO_INFORMATION
+from explore.costmap import FREE_SPACE, LETHAL_OBSTACLE, NO_INFORMATION, translation_table
 from explore.frontier_search import Frontier, frontier_cost, search_frontiers
 from explore.goal_logic import GoalLogic, PlanAction
+from explore.team import costmap_known_at, team_frontiers
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.grid import Grid
 
 RES = 0.5
 
@@ -98,3 +104,47 @@ def test_an_area_left_for_longer_than_the_timeout_starts_afresh():
     assert logic.plan([a], RES, 125.0).action is PlanAction.KEEP_GOAL
     res = logic.plan([a], RES, 131.0)
     assert res.blacklisted == [a.centroid]
+
+
+# ---- the team map's frontiers: work for a robot whose own frontiers are all mapped by teammates ------------------
+
+def team_grid():
+    """A corridor 10 m x 1 m (0.1 m cells) known free up to x = 6 m in the team frame, unknown beyond; its
+    origin rotated by 90 degrees to check the frames."""
+    data = np.full((10, 100), -1, np.int8)
+    data[:, :60] = 0
+    return Grid(data, 0.1, (5.0, 1.0, math.pi / 2), 'world')
+
+
+def test_team_frontiers_are_found_in_the_team_map_and_given_in_the_own_frame():
+    grid = team_grid()
+    own_from_team = tf.inverse(tf.rigid(2.0, -1.0, 0.3))         # the robot's map frame in the team frame
+    robot_team = tuple(tf.apply(grid.cell_to_map(), np.array([[10.5, 5.5]]))[0])   # 1 m into the corridor
+    (f,) = team_frontiers(grid, translation_table(), robot_team, own_from_team, 1.0, 0.0, 0.5, True)
+    # the frontier is the first unknown column (x = 6.0..6.1 m along the corridor): back to grid cells
+    cells = tf.apply(np.linalg.inv(own_from_team @ grid.cell_to_map()), f.points)
+    assert np.all(np.floor(cells[:, 0]) == 60) and f.size == 10
+    assert f.min_distance == pytest.approx(0.1 * (60 - 10 + 1), abs=0.15)   # along the corridor
+    centroid_cell = tf.apply(np.linalg.inv(own_from_team @ grid.cell_to_map()), np.array([f.centroid]))[0]
+    assert 0 < centroid_cell[0] <= 60.5      # the original's centroid quirk pulls it towards the grid's corner
+
+
+def test_team_frontiers_the_own_map_contradicts_are_left_out():
+    grid = team_grid()
+    robot_team = tuple(tf.apply(grid.cell_to_map(), np.array([[10.5, 5.5]]))[0])
+    everything_known = lambda pts: np.ones(len(pts), bool)      # noqa: E731  the own map saw beyond already
+    nothing_known = lambda pts: np.zeros(len(pts), bool)        # noqa: E731
+    assert team_frontiers(grid, translation_table(), robot_team, np.eye(3), 1.0, 0.0, 0.5, True,
+                          everything_known) == []
+    assert len(team_frontiers(grid, translation_table(), robot_team, np.eye(3), 1.0, 0.0, 0.5, True,
+                              nothing_known)) == 1
+    outside = (-50.0, -50.0)
+    assert team_frontiers(grid, translation_table(), outside, np.eye(3), 1.0, 0.0, 0.5, True) == []
+
+
+def test_costmap_known_at_reads_the_own_map():
+    data = np.full((4, 4), NO_INFORMATION, np.uint8)
+    data[0, 0], data[3, 3] = FREE_SPACE, LETHAL_OBSTACLE
+    known_at = costmap_known_at(data, 0.5, (1.0, 1.0))
+    pts = np.array([[1.2, 1.2], [2.7, 2.7], [1.7, 1.2], [0.0, 0.0]])
+    assert known_at(pts).tolist() == [True, True, False, False]
