@@ -22,7 +22,7 @@ from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
 from .nav_client import NavClient, pose_goal, status_name
 from .params import ExploreParams
-from .team import drop_explored_by_team
+from .team import costmap_known_at, drop_explored_by_team
 from .team_link import TeamLink
 
 Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
@@ -143,16 +143,25 @@ class PlanningLoop:
                                                   team_known)
                 rospy.logdebug('explore: %d of %d frontiers already mapped by the team', found - len(frontiers),
                                found)
+            # nothing left of its own: the team map's frontiers, ranked after any of its own
+            own_known = (costmap_known_at(cm.data.copy(), resolution, (cm.origin_x, cm.origin_y))
+                         if team_known is not None and self.logic.select(frontiers, resolution) is None else None)
+        extra: List[Frontier] = [] if own_known is None else self.team.frontiers(frame, pose[:2], cm.table, own_known)
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
             self._publish_markers(frontiers, frame, resolution)
         if self.team.goals is not None:
             team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
-            frontiers = apply_team_penalty(frontiers, team_goals, self.p.team_radius)
+            frontiers = (apply_team_penalty(frontiers, team_goals, self.p.team_radius)
+                         + apply_team_penalty(extra, team_goals, self.p.team_radius))
+        else:
+            frontiers = frontiers + extra
         result = self.logic.plan(frontiers, resolution, now)
         if result.action is PlanAction.STOP:
             if result.reason == 'all_blacklisted':
-                rospy.loginfo('explore: all frontiers traversed/tried out, stopping.')
+                rospy.loginfo('explore: all frontiers traversed/tried out, stopping: no reachable frontier left '
+                              '(%d, all blacklisted: aborted by move_base or no progress for progress_timeout).',
+                              len(frontiers))
             else:
                 rospy.loginfo('explore: no frontiers found, stopping.')
             self._stop(return_target=result.return_target)
