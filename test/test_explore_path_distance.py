@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from explore.costmap import FREE_SPACE, LETHAL_OBSTACLE, NO_INFORMATION, translation_table
+from explore.coverage import KnownRaster
 from explore.frontier_search import Frontier, frontier_cost, search_frontiers
 from explore.goal_logic import GoalLogic, PlanAction
 from explore.team import costmap_known_at, team_frontiers
@@ -148,3 +149,14 @@ def test_costmap_known_at_reads_the_own_map():
     known_at = costmap_known_at(data, 0.5, (1.0, 1.0))
     pts = np.array([[1.2, 1.2], [2.7, 2.7], [1.7, 1.2], [0.0, 0.0]])
     assert known_at(pts).tolist() == [True, True, False, False]
+
+
+def test_known_raster_values_place_the_occupancy():
+    data = np.array([[0, 100], [-1, 0]], np.int8)               # 2 x 2 cells of 1 m, row 0 lowest y
+    grid = Grid(data, 1.0, (0.0, 0.0, 0.0), 'map')
+    raster = KnownRaster.box((0.0, 0.0, 6.0, 6.0), 1.0)
+    out = raster.values(grid, (2.0, 3.0, 0.0))                  # the map's frame at (2, 3) in the world
+    assert out.dtype == np.int8 and out.shape == (6, 6)
+    assert out[3:5, 2:4].tolist() == data.tolist()
+    assert np.count_nonzero(out != -1) == 3                      # -1 wherever the map has no (known) cell
+    assert (raster.values(grid, (2.0, 3.0, 0.0)) >= 0).tolist() == raster.known(grid, (2.0, 3.0, 0.0)).tolist()
