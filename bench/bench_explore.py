@@ -47,6 +47,7 @@ from fleet_sim.sim import FleetSim  # noqa: E402
 DEMO_EXPLORE = dict(planner_frequency=0.5, progress_timeout=30.0, potential_scale=3.0, gain_scale=1.0,
                     min_frontier_size=0.75, team_radius=3.0, path_distance=True)
 TARGET = 0.95
+MILESTONES = (0.5, 0.75, 0.9)   # shares whose times are printed too: where a fleet loses its time
 # The map merge as the bench models it: every MERGE_PERIOD s, robots whose maps share at least MIN_OVERLAP m² of
 # known area are merged (map_merge refuses smaller overlaps), transitively; merged maps are placed exactly.
 MERGE_PERIOD = 2.0
@@ -190,6 +191,7 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             else:
                 team_map[i] = None
 
+    reached_at: Dict[float, float] = {}
     next_merge = 0.0
     while sim.t < limit:
         _, outcomes = sim.step()
@@ -216,6 +218,9 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             if finished:
                 known = [raster.known(r.mapper.to_grid(), r.start) for r in robots]
             share = float(np.count_nonzero(np.logical_or.reduce(known) & reach)) / max(int(reach.sum()), 1)
+            for level in MILESTONES:
+                if share >= level:
+                    reached_at.setdefault(level, sim.t)
             if share >= TARGET:
                 t_target = sim.t
                 break
@@ -229,7 +234,8 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             'goals': sum(ex.goals_sent for ex in explorers), 'aborted': aborted,
             'timed_out': sum(ex.timed_out for ex in explorers),
             'stopped': sum(not ex.exploring for ex in explorers),
-            'stop_reasons': sorted({ex.stop_reason for ex in explorers if ex.stop_reason})}
+            'stop_reasons': sorted({ex.stop_reason for ex in explorers if ex.stop_reason}),
+            'milestones': ' '.join(f'{100 * k:.0f}%@{v:.0f}' for k, v in sorted(reached_at.items()))}
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -337,7 +343,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             aborted = ', '.join(f'{k} x{v}' for k, v in sorted(r['aborted'].items(), key=lambda kv: -kv[1]))
             print(f"{label(n, coord):26s} seed {seed}: t95 {r['t95']:7.1f} s sim  (explored {100 * r['share']:5.1f} "
                   f"% at {r['sim_t']:.0f} s, {r['goals']} goals, {r['timed_out']} timed out, aborted: "
-                  f"{aborted or 'none'}; stopped {r['stopped']} {r['stop_reasons']}; {r['wall']:.1f} s wall)",
+                  f"{aborted or 'none'}; stopped {r['stopped']} {r['stop_reasons']}; {r['milestones']}; {r['wall']:.1f} s wall)",
                   flush=True)
             if args.json:   # after every run, so a long grid keeps what it has measured
                 Path(args.json).write_text(json.dumps(runs, indent=1) + '\n')
