@@ -207,8 +207,10 @@ class GoalLogic:
 
 
 def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Sequence[float]],
-                       team_radius: float) -> List[Frontier]:
-    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal.
+                       team_radius: float, robot: Optional[Sequence[float]] = None) -> List[Frontier]:
+    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal, and,
+    with ``robot`` (this robot's position), those nearer (straight line) to a teammate's goal than to this robot:
+    the teammate will be there first, so a far frontier is left to the robot whose goal is nearest to it.
 
     Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
     penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
@@ -222,7 +224,9 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
     keyed = []
     for f in frontiers:
-        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < team_radius for g in team_goals)
+        own = 0.0 if robot is None else math.hypot(f.centroid[0] - robot[0], f.centroid[1] - robot[1])
+        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < max(team_radius, own)
+                   for g in team_goals)
         g = replace(f, cost=f.cost + penalty) if near else f
         keyed.append(((near, math.isnan(g.cost), g.cost), g))
     keyed.sort(key=lambda kv: kv[0])

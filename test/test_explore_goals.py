@@ -175,6 +175,21 @@ def test_team_penalty_keeps_tiers_with_infinite_costs():
     assert [f.centroid for f in out] == [(9.0, 0.0), (0.0, 0.0)]
 
 
+def test_frontier_nearer_to_a_teammates_goal_is_left_to_it():
+    """With the robot's position, a frontier nearer to a teammate's goal than to this robot is demoted, however far
+    (the teammate will be there first); without it only team_radius counts."""
+    robot = (0.0, 0.0)
+    far_theirs, far_mine = frontier(30.0, 0.0, -10.0), frontier(-12.0, 0.0, -5.0)
+    fs = [far_theirs, far_mine]
+    goals = [(25.0, 0.0)]                                   # a teammate heads 5 m from the first one
+    assert apply_team_penalty(fs, goals, 3.0) == fs        # beyond team_radius: unchanged
+    assert [f.centroid for f in apply_team_penalty(fs, goals, 3.0, robot)] == [(-12.0, 0.0), (30.0, 0.0)]
+    # nearer to this robot than to the goal: kept first; team_radius still applies near the robot
+    assert apply_team_penalty(fs, [(60.0, 0.0)], 3.0, robot)[0] is far_theirs
+    near_goal = frontier(1.0, 0.0, -10.0)
+    assert apply_team_penalty([near_goal, far_mine], [(2.5, 0.0)], 3.0, robot)[0] is far_mine
+
+
 def test_penalised_frontier_chosen_when_others_blacklisted():
     logic = GoalLogic(progress_timeout=30.0)
     fs = apply_team_penalty([frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -1.0)], [(0.0, 0.5)], 3.0)
