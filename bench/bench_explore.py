@@ -144,8 +144,9 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
                     ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t)
             active = ex.team.active(sim.t, world_goal(i), ex.chosen_at, params.team_radius)
             goals = [relative_pose(robot.start, (g.point[0], g.point[1], 0.0))[:2] for g in active]
-            frontiers = (apply_team_penalty(frontiers, goals, params.team_radius, (x, y))
-                         + apply_team_penalty(extra, goals, params.team_radius, (x, y)))
+            heading = ex.goal if ex.goal is not None else (x, y)
+            frontiers = (apply_team_penalty(frontiers, goals, params.team_radius, heading)
+                         + apply_team_penalty(extra, goals, params.team_radius, heading))
         result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t)
         ex.timed_out += len(result.blacklisted)
         if result.action is PlanAction.STOP:

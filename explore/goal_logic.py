@@ -207,10 +207,12 @@ class GoalLogic:
 
 
 def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Sequence[float]],
-                       team_radius: float, robot: Optional[Sequence[float]] = None) -> List[Frontier]:
+                       team_radius: float, heading: Optional[Sequence[float]] = None) -> List[Frontier]:
     """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal, and,
-    with ``robot`` (this robot's position), those nearer (straight line) to a teammate's goal than to this robot:
-    the teammate will be there first, so a far frontier is left to the robot whose goal is nearest to it.
+    with ``heading`` (this robot's own goal, or its position when it has none), those nearer (straight line) to a
+    teammate's goal than to ``heading``: the teammate will be there first, so a far frontier is left to the robot
+    heading nearest to it. Goals are compared with goals so that two robots agree which of them a frontier is
+    left to (comparing a teammate's goal with one's own position, both could leave it to the other).
 
     Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
     penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
@@ -224,7 +226,7 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
     keyed = []
     for f in frontiers:
-        own = 0.0 if robot is None else math.hypot(f.centroid[0] - robot[0], f.centroid[1] - robot[1])
+        own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
         near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < max(team_radius, own)
                    for g in team_goals)
         g = replace(f, cost=f.cost + penalty) if near else f

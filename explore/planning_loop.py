@@ -152,9 +152,9 @@ class PlanningLoop:
             self._publish_markers(frontiers, frame, resolution)
         if self.team.goals is not None:
             team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
-            robot = (pose[0], pose[1])
-            frontiers = (apply_team_penalty(frontiers, team_goals, self.p.team_radius, robot)
-                         + apply_team_penalty(extra, team_goals, self.p.team_radius, robot))
+            heading = self._goal if self._goal is not None else (pose[0], pose[1])
+            frontiers = (apply_team_penalty(frontiers, team_goals, self.p.team_radius, heading)
+                         + apply_team_penalty(extra, team_goals, self.p.team_radius, heading))
         else:
             frontiers = frontiers + extra
         result = self.logic.plan(frontiers, resolution, now)

@@ -176,8 +176,8 @@ def test_team_penalty_keeps_tiers_with_infinite_costs():
 
 
 def test_frontier_nearer_to_a_teammates_goal_is_left_to_it():
-    """With the robot's position, a frontier nearer to a teammate's goal than to this robot is demoted, however far
-    (the teammate will be there first); without it only team_radius counts."""
+    """With where the robot heads (its goal, or its position), a frontier nearer to a teammate's goal than to that is
+    demoted, however far (the teammate will be there first); without it only team_radius counts."""
     robot = (0.0, 0.0)
     far_theirs, far_mine = frontier(30.0, 0.0, -10.0), frontier(-12.0, 0.0, -5.0)
     fs = [far_theirs, far_mine]
@@ -267,3 +267,12 @@ def test_centroid_jitter_does_not_restart_the_timeout():
             break
         assert res.action is PlanAction.SEND_GOAL   # a new point: re-sent, but the timeout keeps running
     assert res.frontier is other and 30.0 < t <= 32.0 and len(res.blacklisted) == 1
+
+
+def test_two_robots_agree_whom_a_frontier_is_left_to():
+    fs = [frontier(x, y, -1.0) for x, y in ((0.0, 0.0), (4.0, 1.0), (9.0, -2.0), (20.0, 5.0))]
+    goal_a, goal_b = (1.0, 0.0), (12.0, 0.0)
+    left_to_b_by_a = {f.centroid for f in apply_team_penalty(fs, [goal_b], 0.5, goal_a) if f.cost > -1.0}
+    left_to_a_by_b = {f.centroid for f in apply_team_penalty(fs, [goal_a], 0.5, goal_b) if f.cost > -1.0}
+    assert left_to_b_by_a and left_to_a_by_b
+    assert left_to_b_by_a | left_to_a_by_b == {f.centroid for f in fs} and not left_to_b_by_a & left_to_a_by_b
