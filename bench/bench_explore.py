@@ -124,6 +124,7 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
 
     def plan(i: int) -> None:
         ex, robot = explorers[i], robots[i]
+        goals: List[Tuple[float, float]] = []
         grid = robot.mapper.to_grid()
         ex.cm.update_full(grid.width, grid.height, grid.resolution, grid.origin[0], grid.origin[1], grid.data,
                           'map')
@@ -147,9 +148,12 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             heading = ex.goal if ex.goal is not None else (x, y)
             frontiers = (apply_team_penalty(frontiers, goals, params.team_radius, heading)
                          + apply_team_penalty(extra, goals, params.team_radius, heading))
-        result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t)
+        result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t, team_busy=coordinated and bool(goals))
         ex.timed_out += len(result.blacklisted)
-        if result.action is PlanAction.STOP:
+        if result.action is PlanAction.WAIT:
+            ex.goal, ex.chosen_at = None, math.inf
+            robot.cancel()
+        elif result.action is PlanAction.STOP:
             ex.exploring, ex.goal, ex.chosen_at = False, None, math.inf
             ex.stop_reason = result.reason
             robot.cancel()

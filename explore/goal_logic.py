@@ -53,6 +53,7 @@ class _AreaProgress:
 class PlanAction(enum.Enum):
     SEND_GOAL = 'send_goal'  # send ``target`` to the navigation action (it replaces the previous goal)
     KEEP_GOAL = 'keep_goal'  # same goal as last time: send nothing
+    WAIT = 'wait'            # every frontier is blacklisted but teammates still explore: cancel the goal, plan on
     STOP = 'stop'            # exploration ended: cancel goals and stop the timer (then ``return_target`` if set)
 
 
@@ -131,8 +132,11 @@ class GoalLogic:
                     return f
         return None
 
-    def plan(self, frontiers: Sequence[Frontier], resolution: float, now: float) -> PlanResult:
-        """One planning cycle (makePlan) over frontiers sorted by cost; ``now`` in seconds."""
+    def plan(self, frontiers: Sequence[Frontier], resolution: float, now: float,
+             team_busy: bool = False) -> PlanResult:
+        """One planning cycle (makePlan) over frontiers sorted by cost; ``now`` in seconds. ``team_busy``: a
+        teammate still pursues a goal, so when every frontier is blacklisted the robot WAITs (the team map will
+        show new frontiers) instead of stopping for good."""
         with self._lock:
             _log.debug("found %d frontiers", len(frontiers))
             for i, f in enumerate(frontiers):
@@ -145,6 +149,9 @@ class GoalLogic:
                     return self._stop('no_frontiers', blacklisted)
                 frontier = self.select(frontiers, resolution)
                 if frontier is None:
+                    if team_busy:
+                        self._prev_goal, self._prev_area = None, None
+                        return PlanResult(PlanAction.WAIT, reason='all_blacklisted', blacklisted=blacklisted)
                     return self._stop('all_blacklisted', blacklisted)
                 target = frontier.centroid
                 same_goal = self._prev_goal is not None and same_point(self._prev_goal, target)

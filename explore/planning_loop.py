@@ -150,6 +150,7 @@ class PlanningLoop:
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
             self._publish_markers(frontiers, frame, resolution)
+        team_goals: List[Tuple[float, float]] = []
         if self.team.goals is not None:
             team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
             heading = self._goal if self._goal is not None else (pose[0], pose[1])
@@ -157,8 +158,14 @@ class PlanningLoop:
                          + apply_team_penalty(extra, team_goals, self.p.team_radius, heading))
         else:
             frontiers = frontiers + extra
-        result = self.logic.plan(frontiers, resolution, now)
-        if result.action is PlanAction.STOP:
+        result = self.logic.plan(frontiers, resolution, now, team_busy=bool(team_goals))
+        if result.action is PlanAction.WAIT:
+            if self._goal is not None:
+                rospy.loginfo('explore: every frontier left is blacklisted; waiting while teammates explore')
+                self._goal, self._goal_chosen_at = None, math.inf
+                self.client.cancel_all_goals()
+            self._publish_team_goal(frame)   # withdrawn: a waiting robot does not keep teammates waiting
+        elif result.action is PlanAction.STOP:
             if result.reason == 'all_blacklisted':
                 rospy.loginfo('explore: all frontiers traversed/tried out, stopping: no reachable frontier left '
                               '(%d, all blacklisted: aborted by move_base or no progress for progress_timeout).',

@@ -182,8 +182,12 @@ def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_fro
         points = move(f.points)
         if own_known_at is not None and len(points) and own_known_at(points).mean() >= KNOWN_BY_TEAM:
             continue
-        out.append(replace(f, points=points, centroid=tuple(move(f.centroid)[0]), initial=tuple(move(f.initial)[0]),
-                           middle=tuple(move(f.middle)[0])))
+        initial = move(f.initial)
+        # the true centroid: the original's (the cells' sum over one more cell than it sums) is pulled towards the
+        # grid's corner, metres off for a small frontier far from it, often into a wall
+        centroid = np.vstack([points, initial]).mean(axis=0)
+        out.append(replace(f, points=points, centroid=(float(centroid[0]), float(centroid[1])),
+                           initial=(float(initial[0, 0]), float(initial[0, 1])), middle=tuple(move(f.middle)[0])))
     return out
 
 

@@ -127,7 +127,9 @@ def test_team_frontiers_are_found_in_the_team_map_and_given_in_the_own_frame():
     assert np.all(np.floor(cells[:, 0]) == 60) and f.size == 10
     assert f.min_distance == pytest.approx(0.1 * (60 - 10 + 1), abs=0.15)   # along the corridor
     centroid_cell = tf.apply(np.linalg.inv(own_from_team @ grid.cell_to_map()), np.array([f.centroid]))[0]
-    assert 0 < centroid_cell[0] <= 60.5      # the original's centroid quirk pulls it towards the grid's corner
+    # the true centroid, in the middle of the frontier's column (the original's quirk would pull it far off,
+    # towards the grid's corner)
+    assert centroid_cell == pytest.approx((60.5, 5.0))
 
 
 def test_team_frontiers_the_own_map_contradicts_are_left_out():
