@@ -276,3 +276,21 @@ def test_two_robots_agree_whom_a_frontier_is_left_to():
     left_to_a_by_b = {f.centroid for f in apply_team_penalty(fs, [goal_a], 0.5, goal_b) if f.cost > -1.0}
     assert left_to_b_by_a and left_to_a_by_b
     assert left_to_b_by_a | left_to_a_by_b == {f.centroid for f in fs} and not left_to_b_by_a & left_to_a_by_b
+
+
+def test_all_blacklisted_waits_while_the_team_is_busy():
+    """A team member with every frontier blacklisted waits (and plans on) while a teammate still has a goal; it
+    stops when none has, and a new frontier after waiting is sent even if it is where the old goal was."""
+    logic = GoalLogic(progress_timeout=30.0, return_to_init=True)
+    logic.set_initial_pose('home')
+    f = frontier(1.0, 1.0)
+    assert logic.plan([f], RES, 0.0).action is PlanAction.SEND_GOAL
+    logic.on_goal_done(ABORTED, f.centroid)
+    res = logic.plan([f], RES, 1.0, team_busy=True)
+    assert res.action is PlanAction.WAIT and res.return_target is None and not logic.returning_home
+    fresh = frontier(7.0, 7.0)
+    assert logic.plan([f, fresh], RES, 2.0, team_busy=True).action is PlanAction.SEND_GOAL
+    logic.on_goal_done(ABORTED, fresh.centroid)
+    res = logic.plan([f, fresh], RES, 3.0, team_busy=False)
+    assert res.action is PlanAction.STOP and res.reason == 'all_blacklisted' and res.return_target == 'home'
+    assert logic.plan([], RES, 4.0, team_busy=True).action is PlanAction.STOP    # nothing at all: stop
