@@ -9,8 +9,8 @@ Runs the fleet simulator's core (fleet_sim.sim.FleetSim, fixed sim steps) and on
 explore core exactly as the explore node uses it (same costmap translation, frontier search, goal logic, team
 penalty; planning every 1/planner_frequency s of sim time and at once after a goal ends), in one process without
 ROS, so the figures do not depend on the machine's load. Configurations: 1 robot; N robots uncoordinated (each
-explores greedily on its own map, as explore_lite); N robots coordinated (team goals shared in the world frame
-with the true transforms, i.e. a perfect map merge). Seeds vary the start poses (and laser noise) on one world;
+explores greedily on its own map, as explore_lite); N robots coordinated (team goals and the team's merged map
+shared in the world frame with the true transforms, i.e. a perfect map merge, once two robots' maps overlap). Seeds vary the start poses (and laser noise) on one world;
 the default building is the demo's (24 m x 16 m), the larger demo uses 48 m x 32 m. Each fleet's time is printed
 as a ratio of one robot's time on the same seed, and of the means.
 """
