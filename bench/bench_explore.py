@@ -36,7 +36,8 @@ from explore.coverage import KnownRaster, reachable_mask  # noqa: E402
 from explore.frontier_search import FrontierSearch  # noqa: E402
 from explore.goal_logic import ABORTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty  # noqa: E402
 from explore.params import ExploreParams  # noqa: E402
-from explore.team import TeamGoals, costmap_known_at, drop_explored_by_team, team_frontiers  # noqa: E402
+from explore.team import (TeamGoals, costmap_known_at, drop_explored_by_team, mask_known_at,  # noqa: E402
+                          team_frontiers)
 from fleet_sim.mapping import compose, relative_pose  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
 from multirobot_map_merge.grid import Grid  # noqa: E402
@@ -109,18 +110,7 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         return None if g is None else compose(robots[j].start, (g[0], g[1], 0.0))[:2]
 
     def known_at_for(i: int):
-        mask, (x, y, yaw) = team_known[i], robots[i].start
-        c, s_ = math.cos(yaw), math.sin(yaw)
-        m = to_world_cell @ np.array([[c, -s_, x], [s_, c, y], [0.0, 0.0, 1.0]])
-
-        def known_at(pts: np.ndarray) -> np.ndarray:
-            cell = m @ np.vstack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
-            cc, rr = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
-            ok = (cc >= 0) & (cc < mask.shape[1]) & (rr >= 0) & (rr < mask.shape[0])
-            out = np.zeros(len(pts), bool)
-            out[ok] = mask[rr[ok], cc[ok]]
-            return out
-        return known_at
+        return mask_known_at(team_known[i], to_world_cell @ tf.rigid(*robots[i].start))
 
     def plan(i: int) -> None:
         ex, robot = explorers[i], robots[i]

@@ -134,18 +134,22 @@ def drop_explored_by_team(frontiers: Sequence[Frontier], data: np.ndarray, resol
     return [f for f in frontiers if known_by_team(f, data, resolution, origin, known_at) < max_known]
 
 
-def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
-    """known_at() for a team map ``grid`` and the 3x3 transform from the robot's map frame into the grid's frame."""
-    to_cell = np.linalg.inv(grid.cell_to_map()) @ team_from_map
-
+def mask_known_at(known: np.ndarray, to_cell: np.ndarray) -> KnownAt:
+    """known_at() for a boolean cell mask and the 3x3 transform from the robot's map frame to its cells (corner
+    convention); points off the mask are unknown."""
     def known_at(pts: np.ndarray) -> np.ndarray:
         cell = to_cell @ np.vstack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
         c, r = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
-        ok = (c >= 0) & (c < grid.width) & (r >= 0) & (r < grid.height)
+        ok = (c >= 0) & (c < known.shape[1]) & (r >= 0) & (r < known.shape[0])
         out = np.zeros(len(pts), bool)
-        out[ok] = grid.data[r[ok], c[ok]] >= 0
+        out[ok] = known[r[ok], c[ok]]
         return out
     return known_at
+
+
+def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
+    """known_at() for a team map ``grid`` and the 3x3 transform from the robot's map frame into the grid's frame."""
+    return mask_known_at(grid.data >= 0, np.linalg.inv(grid.cell_to_map()) @ team_from_map)
 
 
 # --- the team map's frontiers -----------------------------------------------------------------------------------------
@@ -193,11 +197,6 @@ def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_fro
 
 def costmap_known_at(data: np.ndarray, resolution: float, origin: Point2) -> KnownAt:
     """known_at() of a cost grid (the robot's own map): points on a cell other than NO_INFORMATION."""
-    def known_at(pts: np.ndarray) -> np.ndarray:
-        c = np.floor((pts[:, 0] - origin[0]) / resolution).astype(np.int64)
-        r = np.floor((pts[:, 1] - origin[1]) / resolution).astype(np.int64)
-        ok = (c >= 0) & (c < data.shape[1]) & (r >= 0) & (r < data.shape[0])
-        out = np.zeros(len(pts), bool)
-        out[ok] = data[r[ok], c[ok]] != NO_INFORMATION
-        return out
-    return known_at
+    to_cell = np.array([[1.0 / resolution, 0.0, -origin[0] / resolution],
+                        [0.0, 1.0 / resolution, -origin[1] / resolution], [0.0, 0.0, 1.0]])
+    return mask_known_at(data != NO_INFORMATION, to_cell)
