@@ -1,52 +1,59 @@
 #!/usr/bin/env python3
-"""Exploration benchmark: sim time until the robots have explored 95 % of the reachable area of the demo world.
+"""Exploration benchmark: sim time until the robots have explored 95 % of the reachable area of a generated building.
 
-    scripts/env.sh python bench/bench_explore.py [--seeds 0 1 2 3 4] [--world-seed 0] [--limit 3000]
-                                                  [--configs 1 3u 3c] [--markdown FILE]
+    scripts/env.sh python bench/bench_explore.py [--robots 1 3 6 12] [--coordination both] [--seeds 0 1 2 3 4]
+        [--world-seed 0] [--world-width 24 --world-height 16] [--limit 3000] [--json FILE] [--markdown FILE]
+    scripts/env.sh python bench/bench_explore.py --configs 1 3u 3c      # the same sizes as N[u|c] tokens
 
 Runs the fleet simulator's core (fleet_sim.sim.FleetSim, fixed sim steps) and one explorer per robot built from the
 explore core exactly as the explore node uses it (same costmap translation, frontier search, goal logic, team
 penalty; planning every 1/planner_frequency s of sim time and at once after a goal ends), in one process without
-ROS, so the figures do not depend on the machine's load. Configurations: 1 robot; 3 robots uncoordinated (each
-explores greedily on its own map, as explore_lite); 3 robots coordinated (team goals shared in the world frame
-with the true transforms, i.e. a perfect map merge). Seeds vary the start poses (and laser noise) on one world.
-Targets: 3 robots reach 95 % in at most 45 % of one robot's time; coordinated at most 80 % of uncoordinated.
+ROS, so the figures do not depend on the machine's load. Configurations: 1 robot; N robots uncoordinated (each
+explores greedily on its own map, as explore_lite); N robots coordinated (team goals and the team's merged map
+shared in the world frame with the true transforms, i.e. a perfect map merge, once two robots' maps overlap). Seeds vary the start poses (and laser noise) on one world;
+the default building is the demo's (24 m x 16 m), the larger demo uses 48 m x 32 m. Each fleet's time is printed
+as a ratio of one robot's time on the same seed, and of the means.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from explore.costmap import Costmap  # noqa: E402
-from explore.coverage import explored_mask, reachable_mask  # noqa: E402
+from explore.coverage import KnownRaster, reachable_mask  # noqa: E402
 from explore.frontier_search import FrontierSearch  # noqa: E402
 from explore.goal_logic import ABORTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty  # noqa: E402
 from explore.params import ExploreParams  # noqa: E402
-from explore.team import TeamGoals, drop_explored_by_team  # noqa: E402
+from explore.team import (TeamGoals, costmap_known_at, drop_explored_by_team, mask_known_at,  # noqa: E402
+                          team_frontiers)
 from fleet_sim.mapping import compose, relative_pose  # noqa: E402
+from multirobot_map_merge import transforms as tf  # noqa: E402
+from multirobot_map_merge.grid import Grid  # noqa: E402
 from fleet_sim.params import FleetSimParams  # noqa: E402
 from fleet_sim.sim import FleetSim  # noqa: E402
 
 # The explore parameters of launch/demo.launch (explore.launch's values, a faster planner for the sim).
 DEMO_EXPLORE = dict(planner_frequency=0.5, progress_timeout=30.0, potential_scale=3.0, gain_scale=1.0,
-                    min_frontier_size=0.75, team_radius=3.0)
+                    min_frontier_size=0.75, team_radius=3.0, path_distance=True)
 TARGET = 0.95
+MILESTONES = (0.5, 0.75, 0.9)   # shares whose times are printed too: where a fleet loses its time
 # The map merge as the bench models it: every MERGE_PERIOD s, robots whose maps share at least MIN_OVERLAP m² of
 # known area are merged (map_merge refuses smaller overlaps), transitively; merged maps are placed exactly.
 MERGE_PERIOD = 2.0
 MIN_OVERLAP = 4.0
-CONFIGS = {'1': (1, False), '3u': (3, False), '3c': (3, True)}
-LABELS = {'1': '1 robot', '3u': '3 robots, uncoordinated', '3c': '3 robots, coordinated'}
+Config = Tuple[int, bool]    # (robots, coordinated)
 
 
 class Explorer:
@@ -57,7 +64,8 @@ class Explorer:
         self.p = params
         self.cm = Costmap(params.probability_map, params.free_threshold, params.occupied_threshold,
                           by_threshold=True)
-        self.search = FrontierSearch(self.cm, params.potential_scale, params.gain_scale, params.min_frontier_size)
+        self.search = FrontierSearch(self.cm, params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                     params.path_distance)
         self.logic = GoalLogic(params.progress_timeout)
         self.team = TeamGoals(name)
         self.goal: Optional[Tuple[float, float]] = None     # map frame
@@ -66,14 +74,24 @@ class Explorer:
         self.next_tick = 1.0 / params.planner_frequency    # the timer's first tick is one period after start
         self.replan = False
         self.goals_sent = 0
+        self.aborted: Dict[str, int] = {}     # move_base's reason -> count
+        self.timed_out = 0                    # goals blacklisted by the progress timeout
+        self.stop_reason = ''
 
 
-def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: float,
-        params: ExploreParams) -> Dict[str, float]:
-    sim = FleetSim(FleetSimParams(num_robots=n_robots, seed=seed, world_seed=world_seed))
+def label(n_robots: int, coordinated: bool) -> str:
+    if n_robots == 1:
+        return '1 robot'
+    return f"{n_robots} robots, {'coordinated' if coordinated else 'uncoordinated'}"
+
+
+def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: float, params: ExploreParams,
+        world_size: Tuple[float, float] = (24.0, 16.0)) -> Dict[str, Any]:
+    sim = FleetSim(FleetSimParams(num_robots=n_robots, seed=seed, world_seed=world_seed,
+                                  world_width=world_size[0], world_height=world_size[1]))
     robots, world = sim.robots, sim.world
     reach = reachable_mask(world, [r.start[:2] for r in robots])
-    everywhere = np.ones(world.data.shape, bool)
+    raster = KnownRaster.on_grid(world)
     to_world_cell = np.linalg.inv(world.cell_to_map())
     explorers = [Explorer(r.ns, params) for r in robots]
     period = 1.0 / params.planner_frequency
@@ -82,6 +100,8 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
     next_measure = 0.0
     known: List[np.ndarray] = [np.zeros(world.data.shape, bool) for _ in robots]   # per robot, world cells
     team_known: List[Optional[np.ndarray]] = [None] * n_robots    # what merged teammates know, world cells
+    values: List[np.ndarray] = []                                  # per robot, its map's occupancy on world cells
+    team_map: List[Optional[Grid]] = [None] * n_robots            # the merged map of each robot's team, world frame
     merged_with: List[set] = [set() for _ in robots]
     wall0 = time.perf_counter()
 
@@ -90,21 +110,11 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         return None if g is None else compose(robots[j].start, (g[0], g[1], 0.0))[:2]
 
     def known_at_for(i: int):
-        mask, (x, y, yaw) = team_known[i], robots[i].start
-        c, s_ = math.cos(yaw), math.sin(yaw)
-        m = to_world_cell @ np.array([[c, -s_, x], [s_, c, y], [0.0, 0.0, 1.0]])
-
-        def known_at(pts: np.ndarray) -> np.ndarray:
-            cell = m @ np.vstack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
-            cc, rr = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
-            ok = (cc >= 0) & (cc < mask.shape[1]) & (rr >= 0) & (rr < mask.shape[0])
-            out = np.zeros(len(pts), bool)
-            out[ok] = mask[rr[ok], cc[ok]]
-            return out
-        return known_at
+        return mask_known_at(team_known[i], to_world_cell @ tf.rigid(*robots[i].start))
 
     def plan(i: int) -> None:
         ex, robot = explorers[i], robots[i]
+        goals: List[Tuple[float, float]] = []
         grid = robot.mapper.to_grid()
         ex.cm.update_full(grid.width, grid.height, grid.resolution, grid.origin[0], grid.origin[1], grid.data,
                           'map')
@@ -114,25 +124,40 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
             if team_known[i] is not None:
                 frontiers = drop_explored_by_team(frontiers, ex.cm.data, ex.cm.resolution,
                                                   (ex.cm.origin_x, ex.cm.origin_y), known_at_for(i))
+            extra = []
+            if team_map[i] is not None and ex.logic.select(frontiers, ex.cm.resolution) is None:
+                extra = team_frontiers(team_map[i], ex.cm.table, robot.pose[:2], tf.inverse(tf.rigid(*robot.start)),
+                                       params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                       params.path_distance,
+                                       costmap_known_at(ex.cm.data, ex.cm.resolution, (ex.cm.origin_x, ex.cm.origin_y)))
             for j, other in enumerate(explorers):
                 if j != i and j in merged_with[i]:
                     ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t)
             active = ex.team.active(sim.t, world_goal(i), ex.chosen_at, params.team_radius)
             goals = [relative_pose(robot.start, (g.point[0], g.point[1], 0.0))[:2] for g in active]
-            frontiers = apply_team_penalty(frontiers, goals, params.team_radius)
-        result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t)
-        if result.action is PlanAction.STOP:
+            heading = ex.goal if ex.goal is not None else (x, y)
+            frontiers = (apply_team_penalty(frontiers, goals, params.team_radius, heading)
+                         + apply_team_penalty(extra, goals, params.team_radius, heading))
+        result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t, team_busy=coordinated and bool(goals))
+        ex.timed_out += len(result.blacklisted)
+        if result.action is PlanAction.WAIT:
+            ex.goal, ex.chosen_at = None, math.inf
+            robot.cancel()
+        elif result.action is PlanAction.STOP:
             ex.exploring, ex.goal, ex.chosen_at = False, None, math.inf
+            ex.stop_reason = result.reason
             robot.cancel()
         elif result.action is PlanAction.SEND_GOAL:
             ex.goal, ex.chosen_at = result.target, sim.t
             ex.goals_sent += 1
             outcome = sim.set_goal(i, *result.target)
             if outcome is not None:
-                done(i, outcome.status)
+                done(i, outcome.status, outcome.text)
 
-    def done(i: int, status: str) -> None:
+    def done(i: int, status: str, text: str) -> None:
         ex = explorers[i]
+        if status != 'succeeded':
+            ex.aborted[text] = ex.aborted.get(text, 0) + 1
         ex.logic.on_goal_done(SUCCEEDED if status == 'succeeded' else ABORTED, ex.goal)
         ex.replan = True   # the node replans at once after every terminal status
 
@@ -152,15 +177,25 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         for i in range(n_robots):
             merged_with[i] = {j for j in range(n_robots) if j != i and find(j) == find(i)}
             team_known[i] = np.logical_or.reduce([known[j] for j in merged_with[i]]) if merged_with[i] else None
+            if merged_with[i]:
+                team = [values[j] for j in sorted(merged_with[i] | {i})]
+                occupied = np.logical_or.reduce([v >= 50 for v in team])
+                free = np.logical_or.reduce([(v >= 0) & (v < 50) for v in team])
+                merged = np.where(occupied, 100, np.where(free, 0, -1)).astype(np.int8)
+                team_map[i] = Grid(merged, world.resolution, world.origin, 'world')
+            else:
+                team_map[i] = None
 
+    reached_at: Dict[float, float] = {}
     next_merge = 0.0
     while sim.t < limit:
         _, outcomes = sim.step()
         for i, o in outcomes:
-            done(i, o.status)
+            done(i, o.status, o.text)
         measure = sim.t + 1e-9 >= next_measure
         if measure or (coordinated and sim.t + 1e-9 >= next_merge):
-            known = [explored_mask(world, everywhere, [(r.mapper.to_grid(), r.start)]) for r in robots]
+            values = [raster.values(r.mapper.to_grid(), r.start) for r in robots]
+            known = [v >= 0 for v in values]
         if coordinated and sim.t + 1e-9 >= next_merge:
             next_merge += MERGE_PERIOD
             merge()
@@ -176,16 +211,26 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
         if measure or finished:
             next_measure += 1.0
             if finished:
-                known = [explored_mask(world, everywhere, [(r.mapper.to_grid(), r.start)]) for r in robots]
+                known = [raster.known(r.mapper.to_grid(), r.start) for r in robots]
             share = float(np.count_nonzero(np.logical_or.reduce(known) & reach)) / max(int(reach.sum()), 1)
+            for level in MILESTONES:
+                if share >= level:
+                    reached_at.setdefault(level, sim.t)
             if share >= TARGET:
                 t_target = sim.t
                 break
         if finished:
             break
+    aborted: Dict[str, int] = {}
+    for ex in explorers:
+        for text, k in ex.aborted.items():
+            aborted[text] = aborted.get(text, 0) + k
     return {'t95': t_target, 'share': share, 'sim_t': sim.t, 'wall': time.perf_counter() - wall0,
-            'goals': sum(ex.goals_sent for ex in explorers),
-            'stopped': sum(not ex.exploring for ex in explorers)}
+            'goals': sum(ex.goals_sent for ex in explorers), 'aborted': aborted,
+            'timed_out': sum(ex.timed_out for ex in explorers),
+            'stopped': sum(not ex.exploring for ex in explorers),
+            'stop_reasons': sorted({ex.stop_reason for ex in explorers if ex.stop_reason}),
+            'milestones': ' '.join(f'{100 * k:.0f}%@{v:.0f}' for k, v in sorted(reached_at.items()))}
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -193,43 +238,113 @@ def _mean(values: Sequence[float]) -> float:
     return statistics.mean(finite) if len(finite) == len(values) and finite else math.nan
 
 
+def parse_configs(robots: Sequence[int], coordination: str, tokens: Sequence[str]) -> List[Config]:
+    """The fleets to run: ``tokens`` N[u|c] (e.g. 1 3u 3c) if given, else every size of ``robots`` with
+    ``coordination`` (coordinated, uncoordinated or both); one robot is one configuration."""
+    configs: List[Config] = []
+    if tokens:
+        for tok in tokens:
+            n = int(tok.rstrip('uc'))
+            configs.append((n, n > 1 and not tok.endswith('u')))
+    else:
+        modes = {'coordinated': [True], 'uncoordinated': [False], 'both': [False, True]}[coordination]
+        for n in robots:
+            configs.extend([(1, False)] if n == 1 else [(n, c) for c in modes])
+    out: List[Config] = []
+    for c in configs:
+        if c not in out:
+            out.append(c)
+    return out
+
+
+def _fmt(t: float) -> str:
+    return f'{t:.0f}' if math.isfinite(t) else 'never'
+
+
+def _ratio(t: float, t1: float) -> str:
+    return f'{t / t1:.2f}' if math.isfinite(t) and math.isfinite(t1) and t1 > 0 else '-'
+
+
+def table(results: Dict[Config, List[Dict[str, Any]]], seeds: Sequence[int], title: str) -> str:
+    """Markdown: time to the target per seed and mean, then each fleet's ratio to one robot per seed and mean."""
+    one = results.get((1, False))
+    lines = [title, '', '| configuration | ' + ' | '.join(f'seed {s}' for s in seeds) + ' | mean |',
+             '|---|' + '---|' * (len(seeds) + 1)]
+    means = {}
+    for cfg, rs in results.items():
+        means[cfg] = _mean([r['t95'] for r in rs])
+        lines.append(f'| {label(*cfg)} | ' + ' | '.join(_fmt(r['t95']) for r in rs) + f' | {_fmt(means[cfg])} |')
+    if one is not None and len(results) > 1:
+        lines += ['', 'Ratio to one robot (same seed; mean: ratio of the means), and the slowest seed against the '
+                  "fleet's mean:", '',
+                  '| configuration | ' + ' | '.join(f'seed {s}' for s in seeds) + ' | mean | max / mean |',
+                  '|---|' + '---|' * (len(seeds) + 2)]
+        for cfg, rs in results.items():
+            if cfg == (1, False):
+                continue
+            ts = [r['t95'] for r in rs]
+            spread = f'{max(ts) / means[cfg]:.2f}' if math.isfinite(means[cfg]) else '-'
+            lines.append(f'| {label(*cfg)} | ' + ' | '.join(_ratio(t, r1['t95']) for t, r1 in zip(ts, one))
+                         + f' | {_ratio(means[cfg], means[(1, False)])} | {spread} |')
+    return '\n'.join(lines)
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--robots', type=int, nargs='+', default=[1, 3], help='fleet sizes (default 1 3)')
+    ap.add_argument('--coordination', choices=['coordinated', 'uncoordinated', 'both'], default='both',
+                    help='for fleets of more than one robot (default both)')
+    ap.add_argument('--configs', nargs='+', default=[], help='fleets as N[u|c] tokens (e.g. 1 3u 3c 6c); '
+                    'replaces --robots/--coordination')
     ap.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2, 3, 4])
-    ap.add_argument('--world-seed', type=int, default=0, help='floor plan of the demo world (default 0)')
+    ap.add_argument('--world-seed', type=int, default=0, help='floor plan of the generated building (default 0)')
+    ap.add_argument('--world-width', type=float, default=24.0, help='building width, m (default 24, the demo)')
+    ap.add_argument('--world-height', type=float, default=16.0, help='building height, m (default 16)')
     ap.add_argument('--limit', type=float, default=3000.0, help='sim seconds per run before giving up')
-    ap.add_argument('--configs', nargs='+', default=list(CONFIGS), choices=list(CONFIGS))
-    ap.add_argument('--markdown', help='also write the table to this file')
+    ap.add_argument('--set', nargs='+', default=[], metavar='NAME=VALUE',
+                    help="override explore parameters of the demo's set, e.g. path_distance=false")
+    ap.add_argument('--json', help='write every run to this file: a list of {robots, coordinated, seed, '
+                    'world_width, world_height, t95_s (null: not reached)}')
+    ap.add_argument('--markdown', help='also write the tables to this file')
     args = ap.parse_args(argv)
-    params = ExploreParams(**DEMO_EXPLORE)
-    results: Dict[str, List[Dict[str, float]]] = {}
-    for key in args.configs:
-        n, coord = CONFIGS[key]
-        results[key] = []
+    for tok in args.configs:
+        if not tok.rstrip('uc').isdigit() or int(tok.rstrip('uc')) < 1 or tok.count('u') + tok.count('c') > 1:
+            ap.error(f'--configs: {tok!r} is not N, Nu or Nc')
+    if min(args.robots) < 1:
+        ap.error('--robots: fleet sizes must be at least 1')
+    configs = parse_configs(args.robots, args.coordination, args.configs)
+    explore = dict(DEMO_EXPLORE)
+    for item in args.set:
+        name, _, value = item.partition('=')
+        if name not in ExploreParams.__dataclass_fields__ or not value:
+            ap.error(f'--set: {item!r} is not NAME=VALUE of an explore parameter')
+        explore[name] = yaml.safe_load(value)
+    try:
+        params = ExploreParams.from_mapping(explore)
+    except ValueError as e:
+        ap.error(str(e))
+    size = (args.world_width, args.world_height)
+    print(f'explore params: {explore}; building {size[0]:g} m x {size[1]:g} m, floor plan seed '
+          f'{args.world_seed}; seeds {args.seeds}', flush=True)
+    results: Dict[Config, List[Dict[str, Any]]] = {}
+    runs: List[Dict[str, Any]] = []
+    for n, coord in configs:
+        results[(n, coord)] = []
         for seed in args.seeds:
-            r = run(n, coord, seed, args.world_seed, args.limit, params)
-            results[key].append(r)
-            print(f"{LABELS[key]:26s} seed {seed}: t95 {r['t95']:7.1f} s sim  (explored {100 * r['share']:5.1f} %, "
-                  f"{r['goals']} goals, {r['wall']:.1f} s wall)", flush=True)
-    lines = [f"Exploration of the demo world (floor plan seed {args.world_seed}), sim time to {TARGET:.0%} of the "
-             f"reachable area, seeds {' '.join(map(str, args.seeds))}:", '',
-             '| configuration | ' + ' | '.join(f'seed {s}' for s in args.seeds) + ' | mean |',
-             '|---|' + '---|' * (len(args.seeds) + 1)]
-    means = {}
-    for key, rs in results.items():
-        means[key] = _mean([r['t95'] for r in rs])
-        lines.append(f'| {LABELS[key]} | ' + ' | '.join(f"{r['t95']:.0f}" for r in rs) + f' | {means[key]:.0f} |')
-    lines.append('')
-    if '1' in means and '3u' in means:
-        ratio = min(means['3u'], means.get('3c', math.inf)) / means['1']
-        lines.append(f"3 robots / 1 robot: uncoordinated {means['3u'] / means['1']:.2f}"
-                     + (f", coordinated {means['3c'] / means['1']:.2f}" if '3c' in means else '')
-                     + f" (target <= 0.45: {'met' if ratio <= 0.45 else 'NOT met'})")
-    if '3u' in means and '3c' in means:
-        ratio = means['3c'] / means['3u']
-        lines.append(f"coordinated / uncoordinated: {ratio:.2f} "
-                     f"(target <= 0.80: {'met' if ratio <= 0.8 else 'NOT met'})")
-    text = '\n'.join(lines)
+            r = run(n, coord, seed, args.world_seed, args.limit, params, size)
+            results[(n, coord)].append(r)
+            runs.append({'robots': n, 'coordinated': coord, 'seed': seed, 'world_width': size[0],
+                         'world_height': size[1], 't95_s': r['t95'] if math.isfinite(r['t95']) else None})
+            aborted = ', '.join(f'{k} x{v}' for k, v in sorted(r['aborted'].items(), key=lambda kv: -kv[1]))
+            print(f"{label(n, coord):26s} seed {seed}: t95 {r['t95']:7.1f} s sim  (explored {100 * r['share']:5.1f} "
+                  f"% at {r['sim_t']:.0f} s, {r['goals']} goals, {r['timed_out']} timed out, aborted: "
+                  f"{aborted or 'none'}; stopped {r['stopped']} {r['stop_reasons']}; {r['milestones']}; {r['wall']:.1f} s wall)",
+                  flush=True)
+            if args.json:   # after every run, so a long grid keeps what it has measured
+                Path(args.json).write_text(json.dumps(runs, indent=1) + '\n')
+    title = (f"Exploration of a {size[0]:g} m x {size[1]:g} m building (floor plan seed {args.world_seed}), sim time "
+             f"(s) to {TARGET:.0%} of the reachable area, limit {args.limit:g} s:")
+    text = table(results, args.seeds, title)
     print('\n' + text)
     if args.markdown:
         Path(args.markdown).write_text(text + '\n')

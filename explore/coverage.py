@@ -79,12 +79,20 @@ class KnownRaster:
         """Boolean raster of the cells known in ``grid`` placed at ``pose`` (its frame's pose in the world)."""
         if grid is None or grid.is_empty():
             return np.zeros(self.shape, bool)
+        return self._warp(grid.known_mask().astype(np.uint8), grid, pose, 0).astype(bool)
+
+    def values(self, grid: Optional[Grid], pose: Pose) -> np.ndarray:
+        """Raster (int8) of the occupancy of ``grid`` placed at ``pose``; -1 where it has no cell."""
+        if grid is None or grid.is_empty():
+            return np.full(self.shape, -1, np.int8)
+        return self._warp(grid.data.astype(np.int16), grid, pose, -1).astype(np.int8)
+
+    def _warp(self, src: np.ndarray, grid: Grid, pose: Pose, border: int) -> np.ndarray:
         # raster pixel -> source pixel (OpenCV: a pixel's centre has integer coordinates, nearest = round)
         to_src = tf.translation(-0.5, -0.5) @ tf.inverse(tf.rigid(*pose) @ grid.cell_to_map()) @ self.world_from_pixel
-        out = cv2.warpAffine(grid.known_mask().astype(np.uint8), to_src[:2], (self.shape[1], self.shape[0]),
-                             flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=0)
-        return out.astype(bool)
+        return cv2.warpAffine(src, to_src[:2], (self.shape[1], self.shape[0]),
+                              flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=border)
 
 
 def explored_mask(world: Grid, reachable: np.ndarray, maps: Sequence[Tuple[Grid, Pose]]) -> np.ndarray:

@@ -62,13 +62,14 @@ _SMALL_LEVEL = 24
 
 
 def _bfs_order(sources: np.ndarray, open_: np.ndarray, offsets: np.ndarray,
-               stop: Optional[np.ndarray] = None) -> np.ndarray:
+               stop: Optional[np.ndarray] = None, level_sizes: Optional[List[int]] = None) -> np.ndarray:
     """Cells reached by a FIFO-queue BFS from ``sources`` (excluded), in the order the queue would pop them.
 
     Works on a padded flat grid. ``open_`` (contiguous bool, consumed: cells are closed as they are reached) says
     which cells may be entered; sources must be closed already. Each level is the previous level's cells' neighbours
     in (parent order, offset order), first occurrence kept — exactly the queue's visited-on-push order. With
-    ``stop``, ends after the first level that reaches a ``stop`` cell.
+    ``stop``, ends after the first level that reaches a ``stop`` cell. With ``level_sizes``, the number of cells
+    of each level is appended to it (level 1 = the sources' neighbours).
     """
     chunks: List[object] = []
     open_mv = memoryview(open_.view(np.uint8))
@@ -87,6 +88,8 @@ def _bfs_order(sources: np.ndarray, open_: np.ndarray, offsets: np.ndarray,
                         nxt.append(n)
             if not nxt:
                 break
+            if level_sizes is not None:
+                level_sizes.append(len(nxt))
             if chunks and isinstance(chunks[-1], list):
                 chunks[-1].extend(nxt)
             else:
@@ -107,6 +110,8 @@ def _bfs_order(sources: np.ndarray, open_: np.ndarray, offsets: np.ndarray,
             cand = cand[claim[cand] == pos]
             open_[cand] = False
             chunks.append(cand)
+            if level_sizes is not None:
+                level_sizes.append(int(cand.size))
             found = stop is not None and bool(stop[cand].any())
             cur = cand
         if found:
@@ -118,11 +123,13 @@ def _bfs_order(sources: np.ndarray, open_: np.ndarray, offsets: np.ndarray,
 
 def search_frontiers(data: np.ndarray, resolution: float, origin: Point2, robot_cell: Tuple[int, int],
                      potential_scale: float = 1e-3, gain_scale: float = 1.0,
-                     min_frontier_size: float = 0.5) -> List[Frontier]:
+                     min_frontier_size: float = 0.5, path_distance: bool = False) -> List[Frontier]:
     """Frontiers reachable from ``robot_cell`` (mx, my) in the cost grid ``data`` (uint8, shape (size_y, size_x)).
 
     Sorted by ascending cost with a stable sort (NaN costs last); the original's unstable sort may order ties
-    differently. Frontiers with ``size·resolution < min_frontier_size`` are dropped.
+    differently. Frontiers with ``size·resolution < min_frontier_size`` are dropped. ``path_distance``: a
+    frontier's ``min_distance`` (and ``middle``) is measured along free space (4-connected steps from the search's
+    start cell) instead of in a straight line, see ``path_steps``.
     """
     if data.dtype != np.uint8 or data.ndim != 2:
         raise TypeError(f"cost grid must be a 2-D uint8 array, got {data.dtype} {data.shape}")
@@ -150,7 +157,8 @@ def search_frontiers(data: np.ndarray, resolution: float, origin: Point2, robot_
     open_free = free.copy()
     open_free[start] = False
     first_level = np.array([start], dtype=np.int64)
-    order = np.concatenate([first_level, _bfs_order(first_level, open_free, off4)])
+    level_sizes: List[int] = [1]
+    order = np.concatenate([first_level, _bfs_order(first_level, open_free, off4, level_sizes=level_sizes)])
 
     unknown2 = padded == NO_INFORMATION
     fmask2 = unknown2 & _near4(free2)
@@ -164,10 +172,29 @@ def search_frontiers(data: np.ndarray, resolution: float, origin: Point2, robot_
     seed_labels = label_of(seeds)
     lut = np.full(int(seed_labels.max()) + 1, -1, dtype=np.int64)
     lut[seed_labels] = np.arange(seeds.size)
+    steps = path_steps(order, level_sizes, padded.shape, off4, rest) if path_distance else None
     frontiers = _assemble(seeds, rest, lut[label_of(rest)], w, resolution, origin, (mx, my),
-                          potential_scale, gain_scale, min_frontier_size)
+                          potential_scale, gain_scale, min_frontier_size, steps)
     frontiers.sort(key=lambda f: (math.isnan(f.cost), f.cost))
     return frontiers
+
+
+def path_steps(order: np.ndarray, level_sizes: List[int], shape: Tuple[int, int], off4: np.ndarray,
+               cells: np.ndarray) -> np.ndarray:
+    """Steps along free space from the search's start to each frontier cell of ``cells`` (flat padded indices):
+    one more than its nearest free 4-neighbour's BFS level.
+
+    Why: explore_lite ranks frontiers by straight-line distance. In a building the way to a frontier often starts
+    away from it (round a wall), so driving towards the chosen frontier makes another one look nearer; the robot
+    then switches goals back and forth between two frontiers for ever without reaching either (each switch also
+    restarts the progress timeout). Distances along free space shrink as the robot drives along its path, so the
+    choice stays. 4-connected steps measure Manhattan length in the open, which is still a metric with that
+    property (a monotone path to a frontier shortens its distance by every step taken).
+    """
+    level = np.full(shape[0] * shape[1], np.inf)
+    level[order] = np.repeat(np.arange(len(level_sizes), dtype=np.float64), level_sizes)
+    near = np.min(level[cells[:, None] + off4[None, :]], axis=1)
+    return near + 1.0
 
 
 def _frontier_seeds(order: np.ndarray, unknown2: np.ndarray, fmask2: np.ndarray,
@@ -200,8 +227,9 @@ def _frontier_seeds(order: np.ndarray, unknown2: np.ndarray, fmask2: np.ndarray,
 
 def _assemble(seeds: np.ndarray, rest: np.ndarray, k: np.ndarray, w: int, resolution: float, origin: Point2,
               robot_cell: Tuple[int, int], potential_scale: float, gain_scale: float,
-              min_frontier_size: float) -> List[Frontier]:
-    """Frontier records from the seeds and the non-seed cells ``rest`` (BFS order) with their frontier index ``k``."""
+              min_frontier_size: float, steps: Optional[np.ndarray] = None) -> List[Frontier]:
+    """Frontier records from the seeds and the non-seed cells ``rest`` (BFS order) with their frontier index ``k``;
+    ``steps`` (per cell of ``rest``): distances along free space in cells instead of straight lines."""
     n = seeds.size
     sizes = 1 + np.bincount(k, minlength=n)
 
@@ -221,6 +249,8 @@ def _assemble(seeds: np.ndarray, rest: np.ndarray, k: np.ndarray, w: int, resolu
     cys = np.bincount(k, weights=wy, minlength=n) / sizes
     dx, dy = rx - wx, ry - wy
     dist = np.sqrt(dx * dx + dy * dy)  # the original's pow(d, 2.0), which compilers turn into d*d
+    if steps is not None:
+        dist = steps * resolution
     # Strict '<' update in the original: the first cell (BFS order) at the minimum distance is 'middle'.
     by_dist = np.lexsort((np.arange(rest.size), dist, k))
     is_first = np.ones(by_dist.size, dtype=bool)
@@ -267,8 +297,9 @@ class FrontierSearch:
     """The original's FrontierSearch: searches a Costmap (under its lock) from a world position."""
 
     def __init__(self, costmap: Costmap, potential_scale: float, gain_scale: float,
-                 min_frontier_size: float) -> None:
+                 min_frontier_size: float, path_distance: bool = False) -> None:
         self.costmap = costmap
+        self.path_distance = path_distance
         self.potential_scale = potential_scale
         self.gain_scale = gain_scale
         self.min_frontier_size = min_frontier_size
@@ -282,4 +313,5 @@ class FrontierSearch:
                 return []
             return search_frontiers(self.costmap.data, self.costmap.resolution,
                                     (self.costmap.origin_x, self.costmap.origin_y), cell,
-                                    self.potential_scale, self.gain_scale, self.min_frontier_size)
+                                    self.potential_scale, self.gain_scale, self.min_frontier_size,
+                                    self.path_distance)

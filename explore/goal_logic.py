@@ -41,9 +41,19 @@ def on_blacklist(point: Sequence[float], blacklist: Sequence[Sequence[float]], r
     return any(abs(point[0] - b[0]) < tol and abs(point[1] - b[1]) < tol for b in blacklist)
 
 
+@dataclass
+class _AreaProgress:
+    """How the pursuit of one goal area went: the nearest the robot got and how long it has been pursued since."""
+    point: Point2          # the latest goal in the area (the frontier's centroid drifts as the map grows)
+    best_distance: float   # the smallest min_distance seen while it was the goal
+    stalled: float         # seconds pursued (as the goal) without getting nearer than best_distance
+    seen: float            # time of the latest plan that chose it
+
+
 class PlanAction(enum.Enum):
     SEND_GOAL = 'send_goal'  # send ``target`` to the navigation action (it replaces the previous goal)
     KEEP_GOAL = 'keep_goal'  # same goal as last time: send nothing
+    WAIT = 'wait'            # every frontier is blacklisted but teammates still explore: cancel the goal, plan on
     STOP = 'stop'            # exploration ended: cancel goals and stop the timer (then ``return_target`` if set)
 
 
@@ -69,8 +79,10 @@ class GoalLogic:
         # None instead of the original's (0,0,0): a first target within 1 cm of the origin is not "the same goal"
         # (the original would blacklist it at once).
         self._prev_goal: Optional[Point2] = None
-        self._prev_distance = 0.0
-        self._last_progress = 0.0
+        # Progress per goal area, remembered while the area was a goal within the last progress_timeout: a robot
+        # that switches back and forth between two goals resumes each one's clock instead of restarting it.
+        self._areas: List[_AreaProgress] = []
+        self._prev_area: Optional[_AreaProgress] = None
         self._resuming = False
         self._initial_pose: Any = None
         self._returned = False
@@ -104,6 +116,7 @@ class GoalLogic:
         instead of keeping a goal nobody pursues any more."""
         with self._lock:
             self._prev_goal = None
+            self._prev_area = None
 
     @property
     def returning_home(self) -> bool:
@@ -119,8 +132,11 @@ class GoalLogic:
                     return f
         return None
 
-    def plan(self, frontiers: Sequence[Frontier], resolution: float, now: float) -> PlanResult:
-        """One planning cycle (makePlan) over frontiers sorted by cost; ``now`` in seconds."""
+    def plan(self, frontiers: Sequence[Frontier], resolution: float, now: float,
+             team_busy: bool = False) -> PlanResult:
+        """One planning cycle (makePlan) over frontiers sorted by cost; ``now`` in seconds. ``team_busy``: a
+        teammate still pursues a goal, so when every frontier is blacklisted the robot WAITs (the team map will
+        show new frontiers) instead of stopping for good."""
         with self._lock:
             _log.debug("found %d frontiers", len(frontiers))
             for i, f in enumerate(frontiers):
@@ -133,20 +149,19 @@ class GoalLogic:
                     return self._stop('no_frontiers', blacklisted)
                 frontier = self.select(frontiers, resolution)
                 if frontier is None:
+                    if team_busy:
+                        self._prev_goal, self._prev_area = None, None
+                        return PlanResult(PlanAction.WAIT, reason='all_blacklisted', blacklisted=blacklisted)
                     return self._stop('all_blacklisted', blacklisted)
                 target = frontier.centroid
                 same_goal = self._prev_goal is not None and same_point(self._prev_goal, target)
-                # Progress is judged per goal area (the blacklist square), not per exact point: map noise moves a
-                # frontier's centroid by more than 1 cm from plan to plan, and the original then restarts the
-                # timeout every time and may retry an unreachable frontier forever.
-                same_area = self._prev_goal is not None and on_blacklist(target, [self._prev_goal], resolution)
                 self._prev_goal = target
-                if not same_area or self._prev_distance > frontier.min_distance:
-                    # a different goal, or we got closer to this one
-                    self._last_progress = now
-                    self._prev_distance = frontier.min_distance
-                if now - self._last_progress > self.progress_timeout and not self._resuming:
+                area = self._progress_in(target, frontier.min_distance, now, resolution)
+                if area.stalled > self.progress_timeout and not self._resuming:
                     self.add_to_blacklist(target)
+                    # the other areas' clocks start afresh: with this goal gone, the one it kept the robot
+                    # switching to is pursued alone now and may well be reached
+                    self._areas, self._prev_area = [], None
                     blacklisted.append(target)
                     continue
                 self._resuming = False
@@ -154,6 +169,31 @@ class GoalLogic:
                     return PlanResult(PlanAction.KEEP_GOAL, target, frontier, blacklisted=blacklisted)
                 self._returned = False
                 return PlanResult(PlanAction.SEND_GOAL, target, frontier, blacklisted=blacklisted)
+
+    def _progress_in(self, target: Point2, distance: float, now: float, resolution: float) -> _AreaProgress:
+        """Update and return the progress record of the goal area of ``target`` (a new one for a new area).
+
+        Progress is judged per goal area (the blacklist square), not per exact point: map noise moves a frontier's
+        centroid by more than 1 cm from plan to plan, and the original then restarts the timeout every time and may
+        retry an unreachable frontier forever. For the same reason the clock of an area runs on (it pauses while
+        another goal is pursued) when the robot returns to it within progress_timeout, instead of restarting.
+        """
+        prev = self._prev_area
+        if prev is not None:   # pursued since the last plan (the clock of every other area is paused)
+            prev.stalled += max(0.0, now - prev.seen)
+            prev.seen = now
+        self._areas = [a for a in self._areas if now - a.seen <= self.progress_timeout]
+        area = prev if prev is not None and on_blacklist(target, [prev.point], resolution) else None
+        if area is None:
+            area = next((a for a in self._areas if on_blacklist(target, [a.point], resolution)), None)
+        if area is None:
+            area = _AreaProgress(target, distance, 0.0, now)
+            self._areas.append(area)
+        area.point, area.seen = target, now
+        if distance < area.best_distance:    # got nearer: progress
+            area.best_distance, area.stalled = distance, 0.0
+        self._prev_area = area
+        return area
 
     def _stop(self, reason: str, blacklisted: List[Point2]) -> PlanResult:
         self._resuming = False
@@ -174,8 +214,12 @@ class GoalLogic:
 
 
 def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Sequence[float]],
-                       team_radius: float) -> List[Frontier]:
-    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal.
+                       team_radius: float, heading: Optional[Sequence[float]] = None) -> List[Frontier]:
+    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal, and,
+    with ``heading`` (this robot's own goal, or its position when it has none), those nearer (straight line) to a
+    teammate's goal than to ``heading``: the teammate will be there first, so a far frontier is left to the robot
+    heading nearest to it. Goals are compared with goals so that two robots agree which of them a frontier is
+    left to (comparing a teammate's goal with one's own position, both could leave it to the other).
 
     Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
     penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
@@ -189,7 +233,9 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
     keyed = []
     for f in frontiers:
-        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < team_radius for g in team_goals)
+        own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
+        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < max(team_radius, own)
+                   for g in team_goals)
         g = replace(f, cost=f.cost + penalty) if near else f
         keyed.append(((near, math.isnan(g.cost), g.cost), g))
     keyed.sort(key=lambda kv: kv[0])

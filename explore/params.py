@@ -46,6 +46,10 @@ class ExploreParams:
     # --- extensions of this port (the ROS 2 port's return_to_init, team coordination, probabilistic maps) ---
     return_to_init: bool = _p(False, "When exploration ends (no frontiers left or all blacklisted), drive back to "
                               "the pose the robot had at start-up.", extension=True)
+    path_distance: bool = _p(False, "Rank frontiers by their distance along the free space of the map instead of "
+                             "the original's straight line. A straight line makes a robot whose way to its goal "
+                             "starts round a wall switch goals back and forth between two frontiers without "
+                             "reaching either; in larger buildings it never finishes.", extension=True)
     team_topic: str = _p('', "Topic on which the explorers of a team share their current goals; robots avoid "
                          "frontiers within `team_radius` of another robot's goal. Empty disables coordination.",
                          extension=True)

@@ -22,7 +22,7 @@ from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
 from .nav_client import NavClient, pose_goal, status_name
 from .params import ExploreParams
-from .team import drop_explored_by_team
+from .team import costmap_known_at, drop_explored_by_team
 from .team_link import TeamLink
 
 Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
@@ -35,7 +35,8 @@ class PlanningLoop:
                  throttle: Throttle, marker_pub: Optional[rospy.Publisher]) -> None:
         self.p = params
         self.costmap = costmap
-        self.search = FrontierSearch(costmap, params.potential_scale, params.gain_scale, params.min_frontier_size)
+        self.search = FrontierSearch(costmap, params.potential_scale, params.gain_scale, params.min_frontier_size,
+                                     params.path_distance)
         self.logic = GoalLogic(params.progress_timeout, params.return_to_init)
         self._robot_pose = robot_pose
         self._throttle = throttle
@@ -142,16 +143,33 @@ class PlanningLoop:
                                                   team_known)
                 rospy.logdebug('explore: %d of %d frontiers already mapped by the team', found - len(frontiers),
                                found)
+            # nothing left of its own: the team map's frontiers, ranked after any of its own
+            own_known = (costmap_known_at(cm.data.copy(), resolution, (cm.origin_x, cm.origin_y))
+                         if team_known is not None and self.logic.select(frontiers, resolution) is None else None)
+        extra: List[Frontier] = [] if own_known is None else self.team.frontiers(frame, pose[:2], cm.table, own_known)
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
             self._publish_markers(frontiers, frame, resolution)
+        team_goals: List[Tuple[float, float]] = []
         if self.team.goals is not None:
             team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
-            frontiers = apply_team_penalty(frontiers, team_goals, self.p.team_radius)
-        result = self.logic.plan(frontiers, resolution, now)
-        if result.action is PlanAction.STOP:
+            heading = self._goal if self._goal is not None else (pose[0], pose[1])
+            frontiers = (apply_team_penalty(frontiers, team_goals, self.p.team_radius, heading)
+                         + apply_team_penalty(extra, team_goals, self.p.team_radius, heading))
+        else:
+            frontiers = frontiers + extra
+        result = self.logic.plan(frontiers, resolution, now, team_busy=bool(team_goals))
+        if result.action is PlanAction.WAIT:
+            if self._goal is not None:
+                rospy.loginfo('explore: every frontier left is blacklisted; waiting while teammates explore')
+                self._goal, self._goal_chosen_at = None, math.inf
+                self.client.cancel_all_goals()
+            self._publish_team_goal(frame)   # withdrawn: a waiting robot does not keep teammates waiting
+        elif result.action is PlanAction.STOP:
             if result.reason == 'all_blacklisted':
-                rospy.loginfo('explore: all frontiers traversed/tried out, stopping.')
+                rospy.loginfo('explore: all frontiers traversed/tried out, stopping: no reachable frontier left '
+                              '(%d, all blacklisted: aborted by move_base or no progress for progress_timeout).',
+                              len(frontiers))
             else:
                 rospy.loginfo('explore: no frontiers found, stopping.')
             self._stop(return_target=result.return_target)

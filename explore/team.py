@@ -12,15 +12,15 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from multirobot_map_merge.grid import Grid
 
-from .costmap import FREE_SPACE, NO_INFORMATION
-from .frontier_search import Frontier
+from .costmap import FREE_SPACE, NO_INFORMATION, translate
+from .frontier_search import Frontier, search_frontiers
 
 Point2 = Tuple[float, float]
 
@@ -134,15 +134,69 @@ def drop_explored_by_team(frontiers: Sequence[Frontier], data: np.ndarray, resol
     return [f for f in frontiers if known_by_team(f, data, resolution, origin, known_at) < max_known]
 
 
-def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
-    """known_at() for a team map ``grid`` and the 3x3 transform from the robot's map frame into the grid's frame."""
-    to_cell = np.linalg.inv(grid.cell_to_map()) @ team_from_map
-
+def mask_known_at(known: np.ndarray, to_cell: np.ndarray) -> KnownAt:
+    """known_at() for a boolean cell mask and the 3x3 transform from the robot's map frame to its cells (corner
+    convention); points off the mask are unknown."""
     def known_at(pts: np.ndarray) -> np.ndarray:
         cell = to_cell @ np.vstack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
         c, r = np.floor(cell[0]).astype(np.int64), np.floor(cell[1]).astype(np.int64)
-        ok = (c >= 0) & (c < grid.width) & (r >= 0) & (r < grid.height)
+        ok = (c >= 0) & (c < known.shape[1]) & (r >= 0) & (r < known.shape[0])
         out = np.zeros(len(pts), bool)
-        out[ok] = grid.data[r[ok], c[ok]] >= 0
+        out[ok] = known[r[ok], c[ok]]
         return out
     return known_at
+
+
+def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
+    """known_at() for a team map ``grid`` and the 3x3 transform from the robot's map frame into the grid's frame."""
+    return mask_known_at(grid.data >= 0, np.linalg.inv(grid.cell_to_map()) @ team_from_map)
+
+
+# --- the team map's frontiers -----------------------------------------------------------------------------------------
+# A robot whose own frontiers are all mapped by teammates (or blacklisted) would stop while the team still has
+# unexplored space it cannot see in its own map; it takes the frontiers of the team's merged map instead. A team
+# frontier that the robot's own map already knows beyond (the merged map lags behind, or places a map wrongly) is
+# not trusted: its own map is what it saw.
+
+
+def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_from_team: np.ndarray,
+                   potential_scale: float, gain_scale: float, min_frontier_size: float, path_distance: bool,
+                   own_known_at: Optional[KnownAt] = None) -> List[Frontier]:
+    """Frontiers of the team map ``grid`` (occupancy, cost bytes through ``table``) searched from the robot's
+    position there, in cost order, expressed in the robot's map frame (``own_from_team``: 3x3); those whose far
+    side ``own_known_at`` (points of the robot's map frame) mostly knows are left out."""
+    if grid.is_empty() or grid.resolution <= 0.0:
+        return []
+    res = grid.resolution
+    to_cell = np.linalg.inv(grid.cell_to_map())
+    c, r, _ = to_cell @ np.array([robot_in_team[0], robot_in_team[1], 1.0])
+    if not (0 <= c < grid.width and 0 <= r < grid.height):
+        return []
+    data = translate(grid.data, table).reshape(grid.data.shape)
+    # searched in the grid's own axes (origin at its corner cell), then moved into the robot's map frame
+    found = search_frontiers(data, res, (0.0, 0.0), (int(c), int(r)), potential_scale, gain_scale,
+                             min_frontier_size, path_distance)
+    m = own_from_team @ grid.cell_to_map() @ np.diag([1.0 / res, 1.0 / res, 1.0])
+
+    def move(p: np.ndarray) -> np.ndarray:
+        p = np.asarray(p, float).reshape(-1, 2)
+        return p @ m[:2, :2].T + m[:2, 2]
+    out = []
+    for f in found:
+        points = move(f.points)
+        if own_known_at is not None and len(points) and own_known_at(points).mean() >= KNOWN_BY_TEAM:
+            continue
+        initial = move(f.initial)
+        # the true centroid: the original's (the cells' sum over one more cell than it sums) is pulled towards the
+        # grid's corner, metres off for a small frontier far from it, often into a wall
+        centroid = np.vstack([points, initial]).mean(axis=0)
+        out.append(replace(f, points=points, centroid=(float(centroid[0]), float(centroid[1])),
+                           initial=(float(initial[0, 0]), float(initial[0, 1])), middle=tuple(move(f.middle)[0])))
+    return out
+
+
+def costmap_known_at(data: np.ndarray, resolution: float, origin: Point2) -> KnownAt:
+    """known_at() of a cost grid (the robot's own map): points on a cell other than NO_INFORMATION."""
+    to_cell = np.array([[1.0 / resolution, 0.0, -origin[0] / resolution],
+                        [0.0, 1.0 / resolution, -origin[1] / resolution], [0.0, 0.0, 1.0]])
+    return mask_known_at(data != NO_INFORMATION, to_cell)

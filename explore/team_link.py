@@ -22,7 +22,8 @@ from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quatern
 from multirobot_map_merge.throttle import Throttle
 
 from .params import ExploreParams
-from .team import KnownAt, TeamGoals, grid_known_at
+from .frontier_search import Frontier
+from .team import KnownAt, TeamGoals, grid_known_at, team_frontiers
 
 Point2 = Tuple[float, float]
 HAS_GOAL = (0.0, 0.0, 0.0, 1.0)   # orientation of a published goal (all zeros: withdrawn)
@@ -93,6 +94,22 @@ class TeamLink:
             return None
         x, y, c, s = _planar(t)
         return grid_known_at(grid, np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]]))
+
+    def frontiers(self, frame: str, robot_xy: Point2, table: np.ndarray, own_known_at: KnownAt) -> List[Frontier]:
+        """The team map's frontiers in ``frame`` (the robot's map frame), searched from the robot at ``robot_xy``
+        there; [] without a team map or its tf (team.team_frontiers)."""
+        grid = self._map
+        if grid is None:
+            return []
+        t = self._lookup(grid.frame_id or self.p.team_frame, frame)
+        if t is None:
+            return []
+        x, y, c, s = _planar(t)
+        team_from_own = np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+        robot = team_from_own @ np.array([robot_xy[0], robot_xy[1], 1.0])
+        p = self.p
+        return team_frontiers(grid, table, (robot[0], robot[1]), np.linalg.inv(team_from_own), p.potential_scale,
+                              p.gain_scale, p.min_frontier_size, p.path_distance, own_known_at)
 
     def active_goals(self, frame: str, now: float, own_goal: Optional[Point2],
                      own_chosen_at: float) -> List[Point2]:

@@ -110,15 +110,29 @@ class PlanningGrid:
 
     # ------------------------------------------------------------------ planning
     def plan(self, start: Sequence[float], goal: Sequence[float]) -> PlanResult:
+        result = self._plan(start, goal, self.lethal)
+        if result.path is None and result.reason == 'no path to the goal':
+            # A robot standing in a doorway that its own (rotated, noisy) map draws a little narrower than it is
+            # finds every way out closed by the margin, although it drove in: it would refuse every goal for
+            # ever. Try once more with the robot's radius alone, as move_base's recovery clears the inflation.
+            tight = self.dist < self.cfg.robot_radius
+            if not np.array_equal(tight, self.lethal):
+                retry = self._plan(start, goal, tight)
+                retry.iterations += result.iterations
+                if retry.path is not None:
+                    return retry
+        return result
+
+    def _plan(self, start: Sequence[float], goal: Sequence[float], lethal_cells: np.ndarray) -> PlanResult:
         cfg = self.cfg
-        hc, wc = self.lethal.shape
+        hc, wc = lethal_cells.shape
         sc, sr = self.cell(start[0], start[1])
         gc, gr = self.cell(goal[0], goal[1])
         if not (0 <= sc < wc and 0 <= sr < hc and 0 <= gc < wc and 0 <= gr < hc):
             return PlanResult(None, 'start or goal outside the planning area')   # cannot happen: area includes them
         if self.occupied_at(goal[0], goal[1]):
             return PlanResult(None, 'the goal is in an obstacle of the map')
-        lethal = self.lethal.copy()
+        lethal = lethal_cells.copy()
         cost = self.cost
         if lethal[sr, sc]:
             # the robot stands closer to a wall than the planner allows (it is still clear of it): let it leave

@@ -175,6 +175,21 @@ def test_team_penalty_keeps_tiers_with_infinite_costs():
     assert [f.centroid for f in out] == [(9.0, 0.0), (0.0, 0.0)]
 
 
+def test_frontier_nearer_to_a_teammates_goal_is_left_to_it():
+    """With where the robot heads (its goal, or its position), a frontier nearer to a teammate's goal than to that is
+    demoted, however far (the teammate will be there first); without it only team_radius counts."""
+    robot = (0.0, 0.0)
+    far_theirs, far_mine = frontier(30.0, 0.0, -10.0), frontier(-12.0, 0.0, -5.0)
+    fs = [far_theirs, far_mine]
+    goals = [(25.0, 0.0)]                                   # a teammate heads 5 m from the first one
+    assert apply_team_penalty(fs, goals, 3.0) == fs        # beyond team_radius: unchanged
+    assert [f.centroid for f in apply_team_penalty(fs, goals, 3.0, robot)] == [(-12.0, 0.0), (30.0, 0.0)]
+    # nearer to this robot than to the goal: kept first; team_radius still applies near the robot
+    assert apply_team_penalty(fs, [(60.0, 0.0)], 3.0, robot)[0] is far_theirs
+    near_goal = frontier(1.0, 0.0, -10.0)
+    assert apply_team_penalty([near_goal, far_mine], [(2.5, 0.0)], 3.0, robot)[0] is far_mine
+
+
 def test_penalised_frontier_chosen_when_others_blacklisted():
     logic = GoalLogic(progress_timeout=30.0)
     fs = apply_team_penalty([frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -1.0)], [(0.0, 0.5)], 3.0)
@@ -252,3 +267,30 @@ def test_centroid_jitter_does_not_restart_the_timeout():
             break
         assert res.action is PlanAction.SEND_GOAL   # a new point: re-sent, but the timeout keeps running
     assert res.frontier is other and 30.0 < t <= 32.0 and len(res.blacklisted) == 1
+
+
+def test_two_robots_agree_whom_a_frontier_is_left_to():
+    fs = [frontier(x, y, -1.0) for x, y in ((0.0, 0.0), (4.0, 1.0), (9.0, -2.0), (20.0, 5.0))]
+    goal_a, goal_b = (1.0, 0.0), (12.0, 0.0)
+    left_to_b_by_a = {f.centroid for f in apply_team_penalty(fs, [goal_b], 0.5, goal_a) if f.cost > -1.0}
+    left_to_a_by_b = {f.centroid for f in apply_team_penalty(fs, [goal_a], 0.5, goal_b) if f.cost > -1.0}
+    assert left_to_b_by_a and left_to_a_by_b
+    assert left_to_b_by_a | left_to_a_by_b == {f.centroid for f in fs} and not left_to_b_by_a & left_to_a_by_b
+
+
+def test_all_blacklisted_waits_while_the_team_is_busy():
+    """A team member with every frontier blacklisted waits (and plans on) while a teammate still has a goal; it
+    stops when none has, and a new frontier after waiting is sent even if it is where the old goal was."""
+    logic = GoalLogic(progress_timeout=30.0, return_to_init=True)
+    logic.set_initial_pose('home')
+    f = frontier(1.0, 1.0)
+    assert logic.plan([f], RES, 0.0).action is PlanAction.SEND_GOAL
+    logic.on_goal_done(ABORTED, f.centroid)
+    res = logic.plan([f], RES, 1.0, team_busy=True)
+    assert res.action is PlanAction.WAIT and res.return_target is None and not logic.returning_home
+    fresh = frontier(7.0, 7.0)
+    assert logic.plan([f, fresh], RES, 2.0, team_busy=True).action is PlanAction.SEND_GOAL
+    logic.on_goal_done(ABORTED, fresh.centroid)
+    res = logic.plan([f, fresh], RES, 3.0, team_busy=False)
+    assert res.action is PlanAction.STOP and res.reason == 'all_blacklisted' and res.return_target == 'home'
+    assert logic.plan([], RES, 4.0, team_busy=True).action is PlanAction.STOP    # nothing at all: stop
