@@ -236,7 +236,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         groups = search_grow(grower, groups, preferred_reference)
         chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
         grower.confirm_searches(chosen)
-        if grower.evict_contradicted(chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
+        if settings.evict and grower.evict_contradicted(
+                chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
             chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
