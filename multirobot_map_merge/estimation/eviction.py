@@ -36,7 +36,8 @@ MANY_AGREEING = 3  # unless that many members agree with the one map that does
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
                   box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings):
     """(agreeing, contradicting): the members that grid k, placed by `placed_k` (metric: its map -> the group's
-    frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it."""
+    frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it
+    (judged until two contradict it)."""
     agreeing, contradicting = [], []
     pk = prepared[k]
     for j, t in members.items():
@@ -48,6 +49,8 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
         if c.overlap_m2 < s.min_overlap_m2 or c.support + c.conflicts < s.min_support:
             continue
         (agreeing if plausible(c, s) else contradicting).append(j)
+        if len(contradicting) > 1:
+            break   # it singles out no member (a broken map contradicts several): the rest need not be judged
     return agreeing, contradicting
 
 
