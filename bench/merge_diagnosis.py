@@ -159,7 +159,7 @@ def _verdict(m, true: np.ndarray, corners: np.ndarray, cell: float) -> str:
 
 
 REPLAYED = {  # what the matches again say, most telling first
-    'union right': 'the final union accepts it, right (left out by the order of the growth)',
+    'union right': 'the final union accepts it, right (the growth judged it against an earlier union)',
     'pair right': 'a pair accepts it, right; the final union refuses it',
     'wrong': 'accepted again but wrong (a pair or the union)',
     'refused': 'refused by its pairs and by the final union',
