@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.admission import OCCUPIED_THRESHOLD
 from multirobot_map_merge.grid import Grid
 
 Pose = Tuple[float, float, float]   # x, y, yaw of a map frame in the world frame
@@ -149,7 +150,7 @@ def wall_fit(maps: Mapping[str, Grid], poses: Mapping[str, Pose], name: str,
     """(near, close): of robot ``name``'s wall cells placed by ``poses``, those with a wall of another placed robot
     map within ``near_m``, and of those, within ``close_m``: how well its walls fit the others' at these poses."""
     def walls(n: str) -> np.ndarray:
-        rows, cols = np.nonzero(maps[n].data >= 65)
+        rows, cols = np.nonzero(maps[n].data >= OCCUPIED_THRESHOLD)
         return tf.apply(tf.rigid(*poses[n]) @ maps[n].cell_to_map(), np.column_stack([cols, rows]).astype(float))
     others = [walls(n) for n in poses if n != name and n in maps]
     if name not in maps or name not in poses or not others:

@@ -56,7 +56,7 @@ def test_the_member_two_maps_left_out_single_out_leaves_and_one_map_is_not_enoug
     s = EstimationSettings()
 
     def single_out(left_out, keep=()):
-        return contradicted_members(left_out, refused, 0, members, footprints, lambda k, t: footprint(grids[k], t),
+        return contradicted_members(left_out, refused, members, footprints, lambda k, t: footprint(grids[k], t),
                                     prepared, keep, s)
     assert single_out([3, 4]) == [0]
     assert single_out([3]) == []          # two members agree with it: not enough alone

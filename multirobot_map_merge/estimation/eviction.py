@@ -54,19 +54,21 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
     return agreeing, contradicting
 
 
-def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatch], seed: int,
+def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatch],
                          members: Mapping[int, np.ndarray], footprints: Mapping, footprint_of,
                          prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
                          s: EstimationSettings) -> List[int]:
-    """The members (never those in `keep`) that maps left out single out: each such map, at the place
-    its refused match onto the union found, agrees with at least MIN_AGREEING members and contradicts this one
-    alone. A member singled out by MIN_VOTES maps, or by one that MANY_AGREEING members agree with, is returned,
-    the most singled out first."""
+    """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
+    match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, agrees with at
+    least MIN_AGREEING members and contradicts this one alone. A member singled out by MIN_VOTES maps, or by one
+    that MANY_AGREEING members agree with, is returned, the most singled out first."""
     votes: Counter = Counter()
     strong: Dict[int, bool] = {}
+    if len(members) <= MIN_AGREEING:
+        return []
     for k in left_out:
         m = refused.get(k)
-        if m is None or m.j != seed or m.best is None or m.transform_m is None or prepared[k] is None \
+        if m is None or m.best is None or m.transform_m is None or prepared[k] is None \
                 or m.best.support < s.min_support or m.best.overlap_m2 < s.min_overlap_m2:
             continue
         box = footprint_of(k, m.transform_m)
@@ -74,7 +76,7 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         if len(contradicting) != 1 or len(agreeing) < MIN_AGREEING:
             continue
         j = contradicting[0]
-        if j in keep or len(members) < 3:
+        if j in keep:
             continue
         votes[j] += 1
         strong[j] = strong.get(j, False) or len(agreeing) >= MANY_AGREEING

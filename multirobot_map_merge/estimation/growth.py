@@ -338,7 +338,7 @@ class Grower:
         for _ in range(MAX_PASSES):
             outside = [k for k, p in enumerate(self.prepared) if p is not None and k not in group.members]
             onto = {k: self.refused_onto[(k, group.seed)] for k in outside if (k, group.seed) in self.refused_onto}
-            singled = contradicted_members(outside, onto, group.seed, group.members, group.union.footprints,
+            singled = contradicted_members(outside, onto, group.members, group.union.footprints,
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
                                            (self.reference,), self.s)
             if not singled:

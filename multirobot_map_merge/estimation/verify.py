@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 FOUND_AGREEMENT = 0.6   # see overlap_found
 SAME_PLACE_PX = 1.0     # placements that move no corner of grid i further apart than this are one estimate
-RING_PX = 3               # pixels around a contradicting piece that tell whether its map saw it amid free floor
+RING_PX = 3               # pixels around a piece of wall that tell whether its map saw it amid free floor
 MOVABLE_FREE_SHARE = 0.75  # of that ring free: a wall face has its unknown behind it (about half)
 
 
@@ -38,8 +38,8 @@ class AcceptanceSettings:
     min_support: int = 100            # agreeing wall pixels a pair needs
     deep_conflict_m: float = 0.2      # a contradicting wall this far inside the other map's view is not at its fringe
     max_deep_conflicts: float = 0.01  # structural ones a pair tolerates, as a share of its agreeing walls
-    movable_size_m: float = 1.0       # a deep contradiction no longer than this (a person, a chair, a door leaf) is
-                                      # what moves between two passes of a real building, not a misplaced wall
+    movable_size_m: float = 1.0       # a deep contradiction in a free-standing piece no longer than this (a person,
+                                      # a chair, a cart) moved between two passes of a real building (free_standing)
     max_movable_conflicts: float = 0.05  # those a pair tolerates, as a share of its agreeing walls
     max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
     fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
@@ -165,20 +165,20 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     deep_px = s.deep_conflict_m / pi.resolution
     conflicts_i = walls_i & ~near_j
     depth_i = pj.known_depth[r0:r1, c0:c1][conflicts_i]
-    deep_i = conflicts_i & (pj.known_depth[r0:r1, c0:c1] > deep_px)
-    deep_j = np.zeros_like(deep_i)
     rows, cols = np.nonzero(walls_j & ~near_i)
     depth_j = np.zeros(0, np.float32)
     if rows.size:
         # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
         x, y, inside = source_pixels(pi, model, cols + c0, rows + r0)
-        depth_j = pi.known_depth[y[inside], x[inside]]
-        deep_j[rows[inside][depth_j > deep_px], cols[inside][depth_j > deep_px]] = True
+        rows, cols, depth_j = rows[inside], cols[inside], pi.known_depth[y[inside], x[inside]]
     depth = np.concatenate([depth_i, depth_j])
     result.deep_conflicts = int((depth > deep_px).sum())
     if s.max_deep_conflicts * support < result.deep_conflicts <= (s.max_deep_conflicts + s.max_movable_conflicts) \
             * support:
         # told apart only where it decides: below, the placement passes either way; above, it fails either way
+        deep_i = conflicts_i & (pj.known_depth[r0:r1, c0:c1] > deep_px)
+        deep_j = np.zeros_like(deep_i)
+        deep_j[rows[depth_j > deep_px], cols[depth_j > deep_px]] = True
         size_px = s.movable_size_m / pi.resolution
         # the contradicting walls that are things standing free in their own map (judged on its walls in the
         # common area: a piece of a longer wall is structure however little of it contradicts)
