@@ -61,3 +61,21 @@ def test_the_member_two_maps_left_out_single_out_leaves_and_one_map_is_not_enoug
     assert single_out([3, 4]) == [0]
     assert single_out([3]) == []          # two members agree with it: not enough alone
     assert single_out([3, 4], keep=(0,)) == []   # the node's reference robot stays
+
+
+def test_a_map_whose_match_found_an_alias_is_judged_at_its_other_places():
+    """Onto a union of a repetitive building the best place of a map left out can be an alias, the true place,
+    contradicted by the broken member, ranked below it (a generated hospital): the members are judged there too."""
+    grids, prepared, members, footprints, refused = scene()
+    s = EstimationSettings()
+    alias = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])   # 3 m along the hall
+    for m in refused.values():
+        m.transform_m = alias
+
+    def single_out():
+        return contradicted_members([3, 4], refused, members, footprints, lambda k, t: footprint(grids[k], t),
+                                    prepared, (), s)
+    assert single_out() == []            # at the alias the map contradicts more than one member: no one singled out
+    for m in refused.values():
+        m.other_places_m = [np.eye(3)]
+    assert single_out() == [0]

@@ -6,7 +6,9 @@ refused by the union: in a generated 36-robot warehouse nine maps agreed wall fo
 they overlapped but one, and 0.32-0.64 with that one, so the union refused them (0.82-0.88). Which group a
 broken map falls into first then decides which robots are merged. Here each map left out is judged against the
 members one by one, at the place its match onto the union found; a member that is the only one to contradict maps
-the other members agree with is taken out of the group, and the maps left out are matched again.
+the other members agree with is taken out of the group, and the maps left out are matched again. In a repetitive
+building the match onto the union can find an alias (a wing of identical rooms) better than the true place, which
+the broken member contradicts; the next best distinct places of that match are judged the same way.
 """
 from __future__ import annotations
 
@@ -59,7 +61,8 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
                          prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
                          s: EstimationSettings) -> List[int]:
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
-    match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, agrees with at
+    match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
+    that match's other places (PairMatch.other_places_m) where it does, agrees with at
     least MIN_AGREEING members and contradicts this one alone. A member singled out by MIN_VOTES maps, or by one
     that MANY_AGREEING members agree with, is returned, the most singled out first."""
     votes: Counter = Counter()
@@ -71,9 +74,14 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         if m is None or m.best is None or m.transform_m is None or prepared[k] is None \
                 or m.best.support < s.min_support or m.best.overlap_m2 < s.min_overlap_m2:
             continue
-        box = footprint_of(k, m.transform_m)
-        agreeing, contradicting = judge_members(k, m.transform_m, members, footprints, box, prepared, s)
-        if len(contradicting) != 1 or len(agreeing) < MIN_AGREEING:
+        for place in [m.transform_m] + list(m.other_places_m):
+            # the best place first; the others where the best is an alias of a repetitive building (the true
+            # place, contradicted by the broken member, ranked below it)
+            agreeing, contradicting = judge_members(k, place, members, footprints, footprint_of(k, place),
+                                                    prepared, s)
+            if len(contradicting) == 1 and len(agreeing) >= MIN_AGREEING:
+                break
+        else:
             continue
         j = contradicting[0]
         if j in keep:

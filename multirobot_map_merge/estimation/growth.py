@@ -124,6 +124,7 @@ class Grower:
         self.failed_searches: set = set()
         self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
+        self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -356,7 +357,8 @@ class Grower:
             evicted = True
             # the maps outside matched again one by one (those of other groups too: the member taken out may have
             # been what their group contradicted), then what is left of the other groups as groups
-            again = [k for k in outside if k != j and k not in group.members]
+            self.evicted.add(j)
+            again = [k for k in outside if k not in self.evicted and k not in group.members]
             self.grow(group, again, search=False)
             for other in [g for g in groups if g is not group]:
                 joined = [k for k in other.members if k in group.members]
@@ -378,8 +380,9 @@ class Grower:
             if j == old_seed:
                 del self.refused_onto[(k, j)]
                 if m.transform_m is not None and (k, new_seed) not in self.refused_onto:
-                    self.refused_onto[(k, new_seed)] = dataclasses.replace(m, j=new_seed,
-                                                                           transform_m=old_to_new @ m.transform_m)
+                    self.refused_onto[(k, new_seed)] = dataclasses.replace(
+                        m, j=new_seed, transform_m=old_to_new @ m.transform_m,
+                        other_places_m=[old_to_new @ t for t in m.other_places_m])
 
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group

@@ -34,6 +34,7 @@ POLISH_STARTS = 3       # nearby estimates of a small-overlap placement polished
 LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in before it is screened
 RESCUE_PLACES = 3       # distinct places polished when no candidate is plausible (see rescued)
 RESCUE_SINGLE = 1       # places polished when a search of a single grid found no candidate that passes
+OTHER_PLACES = 3        # distinct places besides the best kept in metric form (PairMatch.other_places_m)
 NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
 
@@ -53,6 +54,10 @@ class PairMatch:
     best: Optional[Placement] = None
     transform_m: Optional[np.ndarray] = None   # metric: map frame of i -> map frame of j
     alternatives: List[Placement] = field(default_factory=list, repr=False)
+    # metric (like transform_m) places of the best distinct other candidates with the support and common area of an
+    # acceptable placement: onto a union in a repetitive building, the best can be an alias while the true place,
+    # contradicted by one broken member, ranks below it (eviction.py judges the members there too)
+    other_places_m: List[np.ndarray] = field(default_factory=list, repr=False)
 
     @property
     def weight(self) -> float:
@@ -124,6 +129,20 @@ def rescued(pi: PreparedGrid, pj: PreparedGrid, candidates: List[Placement], s: 
         if plausible(polished, s):
             out.append(polished)
     return out
+
+
+def other_places(best: Placement, others: List[Placement], pi: PreparedGrid, s: EstimationSettings,
+                 most: int = OTHER_PLACES) -> List[np.ndarray]:
+    """The pixel transforms of up to `most` candidates among `others` (best first) with the support and common area
+    of an acceptable placement, each distinct from the best and from those before it."""
+    places: List[np.ndarray] = []
+    for c in others:
+        if len(places) >= most:
+            break
+        if c.support >= s.min_support and c.overlap_m2 >= s.min_overlap_m2 \
+                and all(distinct(c.transform, t, pi, s) for t in [best.transform] + places):
+            places.append(c.transform)
+    return places
 
 
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
@@ -225,6 +244,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.matches, result.inliers = best.support + best.conflicts, best.support
     result.confidence = pair_confidence(result.inliers, result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
+    result.other_places_m = [pj.px_to_map @ t @ tf.inverse(pi.px_to_map)
+                             for t in other_places(best, candidates[1:], pi, s)]
 
     best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
