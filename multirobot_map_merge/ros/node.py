@@ -192,9 +192,8 @@ class MapMergeNode:
             self._reference = names[result.reference] if result.reference is not None else None
             self._pending_status = status   # sent by the next merge cycle, with that cycle's placement
 
-    def _publish_status(self, world_from_merged: np.ndarray, stamp) -> None:
-        with self._estimate_lock:
-            pending, self._pending_status = self._pending_status, None
+    def _publish_status(self, pending, world_from_merged: np.ndarray, stamp) -> None:
+        """Send the status an estimation left (taken with the transforms this cycle composed with, or None)."""
         if pending is None:
             return
         status, transforms = pending
@@ -208,11 +207,16 @@ class MapMergeNode:
         pipeline = self._merge_pipeline
         pipeline.feed(grids, matching=False)   # transforms come from the estimation or known poses
         self._warn_admission(robots, pipeline)
+        pending = None
         if self.params.known_init_poses:
             pipeline.set_known_poses([r.pose for r in robots], legacy=self.params.legacy_cell_poses)
         else:
             with self._estimate_lock:
+                # the status is taken with the transforms it describes: one taken later could come from an
+                # estimation that ended while this cycle composed (a loaded machine: a status placing three robots
+                # went out with a merged map composed of one)
                 by_name, reference = dict(self._transforms), self._reference
+                pending, self._pending_status = self._pending_status, None
             # transforms follow the robot by name; a grid that became empty since estimation is skipped by compose
             pipeline.set_transforms([by_name.get(r.name) for r in robots])
             names = [r.name for r in robots]
@@ -245,7 +249,7 @@ class MapMergeNode:
                 placed = [None if k in pipeline.left_out else t for k, t in enumerate(pipeline.transforms)]
                 self._broadcast_tf(robots, grids, placed, world_from_merged, now)
         # else: nothing to publish this cycle, as the original
-        self._publish_status(world_from_merged, now)
+        self._publish_status(pending, world_from_merged, now)
 
     def _warn_admission(self, robots: List[Robot], pipeline: MergingPipeline) -> None:
         """Name the robots whose maps the pipeline's admission normalised or refused (admission.py)."""
