@@ -184,7 +184,7 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
-        self._estimation_gate.estimated(inputs)
+        self._estimation_gate.estimated(inputs, complete=not result.postponed)
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:
