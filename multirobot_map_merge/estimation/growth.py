@@ -427,8 +427,8 @@ class Grower:
         # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map that
         # contradicts its members, so such a contradiction says nothing about where the groups overlap
         # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
-        # descriptors' candidates alone, rescued by the polish, were accepted where the search would have found
-        # better or a rival
+        # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
+        # placement or a rival that makes the match ambiguous
         m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
                        onto_union=len(big.members) > 1, between_groups=True,
                        search_spent=self.search_seconds >= self.s.search_budget_s)
