@@ -95,3 +95,20 @@ def test_estimation_gate_estimates_unchanged_maps_twice_more_then_rests():
         gate.estimated(changed)
     assert not gate.wanted(changed)
     assert gate.wanted((['a'], [grid()]))   # a robot vanished
+
+
+def test_estimation_gate_does_not_rest_while_the_search_budget_left_searches_undone():
+    """An estimation whose search budget ran out (a loaded machine) left robots for a later one: unchanged maps are
+    estimated again until one makes every search it wanted (estimator.estimate makes them then), so that a robot of
+    static maps joins late, not never."""
+    from multirobot_map_merge.ros.robot_maps import EstimationGate
+    gate = EstimationGate()
+    inputs = (['a', 'b'], [grid(), grid(value=0)])
+    for _ in range(3):
+        assert gate.wanted(inputs)
+        gate.estimated(inputs)
+    assert not gate.wanted(inputs)
+    gate.estimated(inputs, complete=False)   # as if the last one had been cut short
+    assert gate.wanted(inputs) and gate.wanted(inputs)
+    gate.estimated(inputs, complete=True)
+    assert not gate.wanted(inputs)

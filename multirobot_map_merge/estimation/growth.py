@@ -26,7 +26,7 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
-from .pair import PairMatch, match_pair
+from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import contradicted_members
 from .tracking import MAX_PASSES, least_agreeing, recheck
@@ -125,6 +125,7 @@ class Grower:
         self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
+        self.postponed = 0          # searches the budget left to a later estimation
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -264,8 +265,6 @@ class Grower:
         known = group.union.known_pixels
         members = frozenset(self.names[m] for m in group.members)
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
-            if self.search_seconds >= self.s.search_budget_s:
-                return False   # the others are searched in a later estimation (their memory is not updated)
             failed = (k, id(group)) in self.failed_searches
             if failed and not self.again:
                 continue   # again once the group has grown as far as it can otherwise (search_again)
@@ -282,6 +281,10 @@ class Grower:
                 # a repetitive building (a generated one: a map the search placed onto 12 members, whose matches
                 # onto 25 contradicted)
                 continue
+            if self.search_seconds >= self.s.search_budget_s:
+                # this grid and the rest are searched in a later estimation (their memory is not updated)
+                self.postponed += 1
+                return False
             self.memory.searches.put(key, (self.grids[k], known, members))
             started = time.perf_counter()
             m = self.match(k, group, search=True)
@@ -426,10 +429,15 @@ class Grower:
         # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
         # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map that
         # contradicts its members, so such a contradiction says nothing about where the groups overlap
+        # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
+        # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
+        # placement or a rival that makes the match ambiguous
         m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
-                       search=self.search_seconds < self.s.search_budget_s, onto_union=len(big.members) > 1,
-                       between_groups=True)
+                       onto_union=len(big.members) > 1, between_groups=True,
+                       search_spent=self.search_seconds >= self.s.search_budget_s)
         self.search_seconds += time.perf_counter() - started
+        if m.reason == SEARCH_POSTPONED:
+            self.postponed += 1
         return m
 
     def _settle(self, n: int) -> None:

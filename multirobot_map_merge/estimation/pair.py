@@ -35,6 +35,7 @@ LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in bef
 RESCUE_PLACES = 3       # distinct places polished when no candidate is plausible (see rescued)
 RESCUE_SINGLE = 1       # places polished when a search of a single grid found no candidate that passes
 OTHER_PLACES = 3        # distinct places besides the best kept in metric form (PairMatch.other_places_m)
+SEARCH_POSTPONED = 'search postponed: the search budget of this estimation is spent'
 NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
 
@@ -147,7 +148,7 @@ def other_places(best: Placement, others: List[Placement], pi: PreparedGrid, s: 
 
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
                search: bool = True, onto_union: bool = False, descriptors: bool = True,
-               between_groups: bool = False) -> PairMatch:
+               between_groups: bool = False, search_spent: bool = False) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
 
     With search=False, only descriptor matches propose placements (cheap); otherwise a correlation search adds
@@ -158,6 +159,11 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     growth.py), it is. When a search found no candidate that passes, the best places are polished and judged again
     (`rescued`): RESCUE_PLACES of them between groups (few matches), the best one after any other search (ICP slides
     a small overlap along a corridor: in a replayed demo run a robot was placed 10 sim s sooner).
+
+    With `search_spent` (the caller's search budget has run out), a match that would need the search is refused as
+    postponed (SEARCH_POSTPONED), not judged on the descriptors' candidates alone: the search's candidates can
+    outrank them or make them ambiguous, so a match accepted without them could be one that the same maps refuse,
+    or place elsewhere, when there is time to search.
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
@@ -198,6 +204,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     searched = False
     if search and (best is None or not plausible(best, s)) \
             and (between_groups or not overlap_found(best, s, onto_union)):
+        if search_spent:
+            result.reason = SEARCH_POSTPONED
+            return result
         # too few good descriptor matches (small overlaps): search placements by correlation instead;
         # not when the overlap was found and the maps contradict there (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,

@@ -30,8 +30,10 @@ estimation of many maps can take seconds) and exits without it, and a watchdog e
 shutdown request whatever still runs. Rates are checked positive at start (no zero-period loop). An estimation that
 takes longer than half its period (many robots) is followed by a rest of half the (wall) time it took, so that
 estimation uses at most about two thirds of the node's time and merging keeps its rate; the correlation searches of
-one estimation stop after params.SEARCH_BUDGET s (the rest are searched in the next ones), so that robots that
-match by descriptors join quickly. An unchanged merge (same maps, same transforms) is re-sent, not recomposed.
+one estimation stop after params.SEARCH_BUDGET s (the rest are searched in the next ones, and the next one on the
+same maps makes them all), so that robots that match by descriptors join quickly; a cut only delays a robot, what
+is placed passes the same rules (estimation/growth.py). An unchanged merge (same maps, same transforms) is re-sent,
+not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming
@@ -184,7 +186,7 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
-        self._estimation_gate.estimated(inputs)
+        self._estimation_gate.estimated(inputs, complete=not result.postponed)
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:
@@ -192,9 +194,8 @@ class MapMergeNode:
             self._reference = names[result.reference] if result.reference is not None else None
             self._pending_status = status   # sent by the next merge cycle, with that cycle's placement
 
-    def _publish_status(self, world_from_merged: np.ndarray, stamp) -> None:
-        with self._estimate_lock:
-            pending, self._pending_status = self._pending_status, None
+    def _publish_status(self, pending, world_from_merged: np.ndarray, stamp) -> None:
+        """Send the status an estimation left (taken with the transforms this cycle composed with, or None)."""
         if pending is None:
             return
         status, transforms = pending
@@ -208,11 +209,16 @@ class MapMergeNode:
         pipeline = self._merge_pipeline
         pipeline.feed(grids, matching=False)   # transforms come from the estimation or known poses
         self._warn_admission(robots, pipeline)
+        pending = None
         if self.params.known_init_poses:
             pipeline.set_known_poses([r.pose for r in robots], legacy=self.params.legacy_cell_poses)
         else:
             with self._estimate_lock:
+                # the status is taken with the transforms it describes: one taken later could come from an
+                # estimation that ended while this cycle composed (a loaded machine: a status placing three robots
+                # went out with a merged map composed of one)
                 by_name, reference = dict(self._transforms), self._reference
+                pending, self._pending_status = self._pending_status, None
             # transforms follow the robot by name; a grid that became empty since estimation is skipped by compose
             pipeline.set_transforms([by_name.get(r.name) for r in robots])
             names = [r.name for r in robots]
@@ -245,7 +251,7 @@ class MapMergeNode:
                 placed = [None if k in pipeline.left_out else t for k, t in enumerate(pipeline.transforms)]
                 self._broadcast_tf(robots, grids, placed, world_from_merged, now)
         # else: nothing to publish this cycle, as the original
-        self._publish_status(world_from_merged, now)
+        self._publish_status(pending, world_from_merged, now)
 
     def _warn_admission(self, robots: List[Robot], pipeline: MergingPipeline) -> None:
         """Name the robots whose maps the pipeline's admission normalised or refused (admission.py)."""

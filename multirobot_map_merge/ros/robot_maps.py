@@ -107,7 +107,9 @@ class EstimationGate:
     placement on the final maps; in the second, estimator.estimate compares the kept placements with an estimate
     afresh from those maps (skipped at once, it would never run in the node; tracking can leave a robot a few tenths
     of a degree off that its final maps, estimated afresh, place within centimetres; and both in one estimation would
-    make the longest estimation of 30 robots too long). Estimation thread only."""
+    make the longest estimation of 30 robots too long). Nor does it stop while the last estimation left searches to
+    a later one (its search budget ran out: a loaded machine): the next one on the same maps makes them
+    (estimator.estimate), so that a robot is placed late, not never. Estimation thread only."""
 
     REPEATS = 2   # estimations on the same maps after the first
 
@@ -115,14 +117,17 @@ class EstimationGate:
         self._inputs: Optional[Tuple[List[str], List[Optional[Grid]]]] = None
         self._repeats = 0   # estimations in a row on the same maps, after the first
         self._asked: Optional[tuple] = None   # (inputs, same as self._inputs): the last wanted() call
+        self._complete = True   # the last estimation made every search it wanted (none postponed)
 
     def wanted(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> bool:
         same = self._inputs is not None and same_inputs(self._inputs, inputs)
         self._asked = (inputs, same)
-        return not (same and self._repeats >= self.REPEATS)
+        return not (same and self._repeats >= self.REPEATS and self._complete)
 
-    def estimated(self, inputs: Tuple[List[str], List[Optional[Grid]]]) -> None:
-        """Record the maps an estimation was made on (compared once, in wanted(), when it asked about them)."""
+    def estimated(self, inputs: Tuple[List[str], List[Optional[Grid]]], complete: bool = True) -> None:
+        """Record the maps an estimation was made on (compared once, in wanted(), when it asked about them), and
+        whether it made every search it wanted (`complete`: none postponed by the search budget)."""
+        self._complete = complete
         asked = self._asked
         same = asked[1] if asked is not None and asked[0] is inputs else \
             self._inputs is not None and same_inputs(self._inputs, inputs)

@@ -71,6 +71,12 @@ class Robots:
     def _add_robot(self, name: str, pose: Optional[InitPose]) -> None:
         rospy.loginfo('adding robot [%s] to system', name)
         robot = Robot(name, pose)
+        # listed before it is subscribed: a latched map can arrive (and wake the estimation) before the second
+        # subscription returns, and an estimation that then takes a snapshot without the robot would be the last
+        # for 1/estimation_rate s (a loaded machine: the robot joined 50 s late)
+        with self._lock:
+            self._robots.insert(0, robot)   # newest first, as the original
+            self._by_name[name] = robot
         map_topic, updates_topic = robot_topics(name, self._params)
         rospy.loginfo('Subscribing to MAP topic: %s.', map_topic)
         # numpy_msg: the int8[] data arrives as an ndarray (no per-cell Python ints); same type and md5 on the wire
@@ -79,9 +85,6 @@ class Robots:
         rospy.loginfo('Subscribing to MAP updates topic: %s.', updates_topic)
         robot.subscribers.append(rospy.Subscriber(updates_topic, numpy_msg(OccupancyGridUpdate), self._on_update,
                                                   callback_args=robot, queue_size=50, buff_size=1 << 24))
-        with self._lock:
-            self._robots.insert(0, robot)   # newest first, as the original
-            self._by_name[name] = robot
 
     # ------------------------------------------------------------------ callbacks: convert + store only
     def _on_map(self, msg: OccupancyGrid, robot: Robot) -> None:
