@@ -126,6 +126,7 @@ class Grower:
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
+        self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -425,17 +426,23 @@ class Grower:
 
     def _match_groups(self, small: Group, big: Group) -> PairMatch:
         self.tried[(small.seed, id(big))] = big.union.version
-        started = time.perf_counter()
-        # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
-        # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map that
-        # contradicts its members, so such a contradiction says nothing about where the groups overlap
-        # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
-        # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
-        # placement or a rival that makes the match ambiguous
-        m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
-                       onto_union=len(big.members) > 1, between_groups=True,
-                       search_spent=self.search_seconds >= self.s.search_budget_s)
-        self.search_seconds += time.perf_counter() - started
+        spent = self.search_seconds >= self.s.search_budget_s
+        state = (small.union.version, big.union.version, spent)
+        last = self.group_matches.get((id(small), id(big)))
+        if last is not None and last[0] is small and last[1] is big and last[2] == state:
+            m = last[3]   # the same two unions, refused before (merge_groups is called again as groups form)
+        else:
+            # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
+            # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map
+            # that contradicts its members, so such a contradiction says nothing about where the groups overlap;
+            # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
+            # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
+            # placement or a rival that makes the match ambiguous
+            started = time.perf_counter()
+            m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
+                           onto_union=len(big.members) > 1, between_groups=True, search_spent=spent)
+            self.search_seconds += time.perf_counter() - started
+            self.group_matches[(id(small), id(big))] = (small, big, state, m)
         if m.reason == SEARCH_POSTPONED:
             self.postponed += 1
         return m
