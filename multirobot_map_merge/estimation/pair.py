@@ -102,6 +102,18 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     return None
 
 
+def as_good(c: Placement, best: Placement, s: EstimationSettings) -> bool:
+    """Whether placement c agrees almost as well as `best` (ambiguity_ratio): by score, or by support when the best
+    scores zero or less. Then its contradictions at the fringe of the other map's view outweigh its support (a tiny
+    early map whose walls end where the other's beams end), and a ratio of scores says nothing (it asked a rival
+    to score higher than the best): a live run placed a map of one room corner 90 degrees and 50 m off (support
+    123, score -127) over a plausible place at another corner with more support (139, score -341)."""
+    best_score = best.score(s.conflict_weight)
+    if best_score > 0:
+        return c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score
+    return c.support >= s.ambiguity_ratio * best.support
+
+
 def rescued(pi: PreparedGrid, pj: PreparedGrid, candidates: List[Placement], s: EstimationSettings,
             rng: np.random.Generator, places_max: int = RESCUE_PLACES) -> List[Placement]:
     """The places of the best candidates with the support and common area of an acceptable placement, each polished
@@ -226,9 +238,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.confidence = pair_confidence(result.inliers, result.matches)
     result.transform_m = pj.px_to_map @ best.transform @ tf.inverse(pi.px_to_map)
 
-    best_score = best.score(s.conflict_weight)
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
-                  and c.score(s.conflict_weight) >= s.ambiguity_ratio * best_score), None)
+                  and as_good(c, best, s)), None)
     result.reason = refusal(best, pi, pj, s, onto_union)
     if not result.reason and rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
