@@ -27,7 +27,8 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.relax')
 RADII = (4.0, 3.0, 2.0)   # pixels: correspondence radius of each level (coarse capture first, as ICP)
 ITERATIONS = 3            # at most, per level
 MAX_POINTS = 400          # wall pixels sampled per grid
-MIN_PAIRS = 30            # correspondences a pair needs to take part in an iteration
+MIN_PAIRS = 10            # correspondences a pair needs (one way) to take part in an iteration: the pairs that
+                          # bridge two groups overlap little, and without them the groups' own walls decided
 FIT_PX = 1.0              # pixels: a wall this close to a wall of the other grid of its pair fits
 MAX_MOVE_M = 0.5          # metres at a grid's corners: a larger move is no refinement
 PRIOR = 1.0               # weight (in correspondences) keeping a direction no wall constrains where it was
