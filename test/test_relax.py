@@ -60,14 +60,14 @@ def test_maps_kept_turned_together_are_pulled_into_place_by_all_the_walls_they_s
 
 
 def test_relaxation_leaves_right_placements_and_far_off_ones_where_they_are(repo_root):
-    """Placements already right move by less than half a cell (the walls fit best within it); a group 10 degrees off is no refinement (its walls
-    cannot be paired up): nothing moves, and tracking's checks judge it."""
+    """Placements already right move by less than half a cell (the walls fit best within it); a group 10 degrees
+    off is no refinement (its walls cannot be paired up): nothing moves, and tracking's checks judge it."""
     grids, true = _chain(repo_root)
     prepared = [prepare(g, 0.05, None) for g in grids]
 
     def relaxed(placements):
         placed = dict(enumerate(placements))
-        return relax(placed, 0, grids, prepared, {k: footprint(grids[k], t) for k, t in placed.items()})
+        return relax(placed, 0, grids, prepared, {k: footprint(grids[k], t) for k, t in placed.items()}, 4.0)
 
     right = relaxed(true)
     assert right is None or all(_error(grids[k], right[k], true[k])[1] < 0.025 for k in range(3))

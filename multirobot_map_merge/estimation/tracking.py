@@ -210,7 +210,7 @@ def relax_placed(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[
             and all(memory.unchanged(last[names[k]], grids[k]) for k in placed):
         return set()
     memory.relaxed = {names[k]: grids[k] for k in placed}
-    out = relax(placed, reference, grids, prepared, footprints, s.seed)
+    out = relax(placed, reference, grids, prepared, footprints, s.min_overlap_m2, s.seed)
     if out is None:
         return set()
     moved = {k for k in placed if not np.allclose(out[k], placed[k])}
