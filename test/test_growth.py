@@ -532,28 +532,3 @@ def test_a_first_placement_waits_for_the_next_estimation_which_may_drop_it(repo_
     for k in (1, 2):
         rot, shift = _error(second.transforms[k], poses, k, 0)
         assert rot < 0.5 and shift < 0.1, (k, rot, shift)
-
-
-def test_a_merge_moving_to_a_larger_group_is_published_at_once(repo_root, monkeypatch):
-    """Held for one estimation, a larger group that replaces the merge would leave its reference alone in place of
-    the merge it replaces: it is published at once when two robots or more were placed; the first merge waits."""
-    from multirobot_map_merge.estimation import estimator
-    from multirobot_map_merge.estimation.memory import EstimationMemory
-    grids, _ = _sample(repo_root, 'three_robots')
-    grids = grids + [grids[2]]
-    names = ['a', 'b', 'c', 'd']
-    moved = [np.eye(3), tf.rigid(1.0, 0.0, 0.1), tf.rigid(0.0, 2.0, 0.2), None]   # a, b and c around a
-    monkeypatch.setattr(estimator, '_settled_estimate',
-                        lambda *args: estimator.Estimate(list(moved), 0))
-    s = EstimationSettings()
-    # c and d were placed, around c: the merge moves to a's group, published whole
-    memory = EstimationMemory()
-    result = estimate(grids, s, preferred_reference=2, previous=[None, None, np.eye(3), tf.rigid(3.0, 0.0, 0.0)],
-                      memory=memory, names=names)
-    assert all(result.transforms[k] is not None for k in range(3)) and not memory.pending
-    # only c was placed: a's group is the first merge, its newcomer b waits (c was placed before)
-    memory = EstimationMemory()
-    result = estimate(grids, s, preferred_reference=2, previous=[None, None, np.eye(3), None],
-                      memory=memory, names=names)
-    assert result.transforms[1] is None and set(memory.pending) == {'b'}
-    assert result.transforms[0] is not None and result.transforms[2] is not None

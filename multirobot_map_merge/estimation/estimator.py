@@ -156,8 +156,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     in memory.pending and handed to tracking with the placements of `previous`, whose check on the next maps
     confirms or drops it. Early maps are small and alike, and a tiny map of a room fits its twin: the robots of live
     12-robot runs were placed 6.5-50 m off for one to four statuses before their grown maps contradicted it. The
-    cost is one estimation's wait for each robot that joins. Not when the merge moves to another, larger group
-    (another reference) while two robots or more were placed: that group is published at once."""
+    cost is one estimation's wait for each robot that joins."""
     if memory is None or previous is None or not names:
         return _settled_estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names)
     reference = names[preferred_reference] if preferred_reference is not None else None
@@ -167,11 +166,6 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
         memory.pending = {}
         return result
     frame = names[result.reference]
-    if frame != reference and sum(t is not None for t in previous) > 1:
-        # the merge moved to a larger group: held, it would leave its reference alone in place of the merge it
-        # replaces (a live run published one robot twice so); the first merge of a run, on the smallest maps, waits
-        memory.pending = {}
-        return result
     held = {}
     for k, t in enumerate(result.transforms):
         if t is None or k == result.reference or previous[k] is not None:
