@@ -315,9 +315,7 @@ def test_a_placement_tracking_drops_is_searched_again_at_once(repo_root):
     folder = repo_root / 'test' / 'data' / 'demo_early_small_map'
     grids = [load_map(str(folder / f'{n}.yaml')) for n in ('union', 'robot_1')]
     s, memory, names = EstimationSettings(), EstimationMemory(), ['union', 'robot_1']
-    held = estimate(grids, s, preferred_reference=0, previous=[None, None], memory=memory, names=names)
-    assert held.transforms[1] is None   # a first placement waits for the next estimation to confirm it
-    first = estimate(grids, s, preferred_reference=0, previous=held.transforms, memory=memory, names=names)
+    first = estimate(grids, s, preferred_reference=0, previous=[None, None], memory=memory, names=names)
     assert first.transforms[1] is not None
     off = tf.rigid(1.0, 0.0, 0.0) @ first.transforms[1]
     again = estimate(grids, s, preferred_reference=0, previous=[np.eye(3), off], memory=memory, names=names)
@@ -501,34 +499,3 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
     searched = {e[1]: n for n, e in reversed(list(enumerate(events))) if e[0] == 'search'}   # grid: first search
     assert set(searched) == {3, 4, 5}
     assert searched[4] > regrouped and searched[5] > regrouped
-
-
-def test_a_first_placement_waits_for_the_next_estimation_which_may_drop_it(repo_root):
-    """Two robots' maps 5 sim s into a live demo (12 robots, seed 2), in two alike rooms side by side: robot_5 has
-    seen one corner of its room, which fits the same corner of robot_9's room (6.5 m off: the maps do not overlap
-    at all), and one estimation of those maps places it there. While the maps grow (memory and `previous`), a first
-    placement is held until the next estimation places it again: on the maps of 2 sim s later it no longer holds,
-    so it is never published. Two robots that do overlap are placed by the second estimation."""
-    from multirobot_map_merge.estimation.memory import EstimationMemory
-    folder = repo_root / 'test' / 'data' / 'demo_neighbour_room'
-    starts = json.loads((folder / 'start_poses.json').read_text())
-    names = ['robot_9', 'robot_5']
-    early, later = ([load_map(str(folder / f'{n}_{when}.yaml')) for n in names] for when in ('early', 'later'))
-    s = EstimationSettings()
-    once = estimate(early, s)   # the cause: one estimation of the early maps alone
-    assert once.transforms[1] is not None
-    assert _error(once.transforms[1], [tf.rigid(*starts[n]) for n in names], 1, 0)[1] > 5.0
-    memory = EstimationMemory()
-    held = estimate(early, s, previous=[None, None], memory=memory, names=names)
-    assert held.reference == 0 and held.transforms[1] is None and 'robot_5' in memory.pending
-    grown = estimate(later, s, preferred_reference=0, previous=held.transforms, memory=memory, names=names)
-    assert grown.transforms[1] is None and not memory.pending
-    # two maps that overlap: held by the first estimation, published by the second
-    grids, poses = _sample(repo_root, 'three_robots')
-    memory, names = EstimationMemory(), ['a', 'b', 'c']
-    first = estimate(grids, s, preferred_reference=0, previous=[None] * 3, memory=memory, names=names)
-    assert sum(t is not None for t in first.transforms) == 1
-    second = estimate(grids, s, preferred_reference=0, previous=first.transforms, memory=memory, names=names)
-    for k in (1, 2):
-        rot, shift = _error(second.transforms[k], poses, k, 0)
-        assert rot < 0.5 and shift < 0.1, (k, rot, shift)

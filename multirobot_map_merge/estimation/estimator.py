@@ -16,7 +16,6 @@ then are re-checked first; those that still hold form the first group, which the
 from __future__ import annotations
 
 import logging
-import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -149,51 +148,6 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
              previous: Optional[Sequence[Optional[np.ndarray]]] = None,
              progress: Optional[Progress] = None, memory: Optional[EstimationMemory] = None,
              names: Optional[Sequence] = None) -> Estimate:
-    """Estimate where every grid goes (see _settled_estimate).
-
-    While the maps grow (a live fleet: `previous`, `memory` and `names`), a grid placed for the first time is left
-    out of the result until the next estimation places it at the same place again (in the same frame): it is kept
-    in memory.pending and handed to tracking with the placements of `previous`, whose check on the next maps
-    confirms or drops it. Early maps are small and alike, and a tiny map of a room fits its twin: the robots of live
-    12-robot runs were placed 6.5-50 m off for one to four statuses before their grown maps contradicted it. The
-    cost is one estimation's wait for each robot that joins."""
-    if memory is None or previous is None or not names:
-        return _settled_estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names)
-    reference = names[preferred_reference] if preferred_reference is not None else None
-    trial = [t if t is not None else _pending(memory, n, reference) for t, n in zip(previous, names)]
-    result = _settled_estimate(grids, settings, cache, preferred_reference, trial, progress, memory, names)
-    if result.reference is None:
-        memory.pending = {}
-        return result
-    frame = names[result.reference]
-    held = {}
-    for k, t in enumerate(result.transforms):
-        if t is None or k == result.reference or previous[k] is not None:
-            continue
-        earlier = memory.pending.get(names[k])
-        if earlier is not None and earlier[1] == frame and grids[k] is not None:
-            rot, shift = tf.difference(earlier[0], t, _corners(grids[k]))
-            if rot <= math.radians(settings.distinct_degrees) and shift <= settings.distinct_metres:
-                continue   # placed there again: confirmed
-        held[names[k]] = (t, frame)
-        result.transforms[k] = None
-    if held:
-        log.debug('new placements held until the next estimation confirms them: %s', ', '.join(map(str, held)))
-    memory.pending = held
-    return result
-
-
-def _pending(memory: EstimationMemory, name, reference) -> Optional[np.ndarray]:
-    """The placement held for grid `name` (memory.pending) if it is in the frame of `reference`."""
-    held = memory.pending.get(name)
-    return held[0] if held is not None and held[1] == reference else None
-
-
-def _settled_estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings,
-                      cache: Optional[FeatureCache] = None, preferred_reference: Optional[int] = None,
-                      previous: Optional[Sequence[Optional[np.ndarray]]] = None,
-                      progress: Optional[Progress] = None, memory: Optional[EstimationMemory] = None,
-                      names: Optional[Sequence] = None) -> Estimate:
     """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
     (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
     (tracking.py) and only the other grids are searched. `memory` (with `names`, stable names of the grids such as

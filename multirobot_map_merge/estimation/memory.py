@@ -84,8 +84,7 @@ class EstimationMemory:
     a failed match; searches: the same for failed correlation searches; latest: name -> the content key of its map
     in the last estimation that tracked placements; settled_inputs: the (name, content key) pairs of the last
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
-    (estimator.py); relaxed: name -> map of the placements tracking last relaxed (relax.py); pending: name ->
-    (transform, reference name) of the new placements the last estimation held back (estimator.estimate)."""
+    (estimator.py); relaxed: name -> map of the placements tracking last relaxed (relax.py)."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
@@ -93,7 +92,6 @@ class EstimationMemory:
         self.settled_inputs: Optional[tuple] = None
         self.fresh_inputs: Optional[tuple] = None
         self.relaxed: Optional[Dict[str, Grid]] = None
-        self.pending: Dict[Hashable, tuple] = {}
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
         self._compared_lock = threading.Lock()
 
