@@ -478,6 +478,53 @@ def test_an_early_small_map_is_found_on_the_union_by_the_search(repo_root):
     assert rot < 1.0 and cells < 3.0, (rot, cells)
 
 
+def test_a_tiny_early_map_of_one_room_corner_is_not_placed_at_one_of_the_alike_corners(repo_root):
+    """Two robots' maps 4 sim s into a live demo (12 robots, seed 2), each of its own room, the rooms alike: robot_5
+    has seen one corner. Its walls fit robot_6's room at two corners (90 degrees and 50 m off the truth, where the maps
+    do not overlap at all); the place with fewer agreeing walls (123 against 139) ranked first by its lower count of
+    fringe contradictions, with both scores negative, and passed, the ratio of the scores then asking the rival to
+    score higher than the best. It is ambiguous; the two robots' final maps, which overlap, are placed right."""
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair
+    folder = repo_root / 'test' / 'data' / 'demo_early_corner'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    true_m = tf.inverse(tf.rigid(*starts['robot_6'])) @ tf.rigid(*starts['robot_5'])   # metric map_5 -> map_6
+    s = EstimationSettings()
+    early = [load_map(str(folder / f'robot_{n}_early.yaml')) for n in (5, 6)]
+    m = match_pair(0, 1, *(prepare(g, 0.05, s.feature) for g in early), s)
+    assert not m.accepted
+    assert m.reason.startswith('ambiguous'), m.reason
+    assert m.best.score(s.conflict_weight) <= 0   # the case the rule is about (not a wider ambiguity ratio)
+    final = [load_map(str(folder / f'robot_{n}_final.yaml')) for n in (5, 6)]
+    m = match_pair(0, 1, *(prepare(g, 0.05, s.feature) for g in final), s)
+    assert m.accepted, m.reason
+    rot, cells = _corner_error(final[0], m.transform_m, true_m)
+    assert rot < 1.0 and cells < 3.0, (rot, cells)
+
+
+def test_the_alike_ends_of_one_room_are_not_taken_for_each_other_on_early_maps(repo_root):
+    """Two robots' maps 3 sim s into a live demo (12 robots, seed 1), both in one long room whose two ends look
+    alike: each robot has seen its own end. Robot_2's end fits robot_10's end after a half turn (13.8 m off the
+    truth; 318 agreeing walls over 16.8 m2), and the truth (slid along the room, 147 over 13.8 m2) agrees as fully
+    over almost as large a common area, with fewer walls because the middle of a room has fewer: ambiguous. Once
+    the maps reach past the middle (20 sim s), the truth is the one place and is accepted."""
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.pair import match_pair
+    folder = repo_root / 'test' / 'data' / 'demo_alike_room_ends'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    s = EstimationSettings()
+    early = [load_map(str(folder / f'{n}_early.yaml')) for n in ('robot_2', 'robot_10')]
+    m = match_pair(0, 1, *(prepare(g, 0.05, s.feature) for g in early), s)
+    assert not m.accepted
+    assert m.reason.startswith('ambiguous'), m.reason
+    later = [load_map(str(folder / f'{n}_later.yaml')) for n in ('robot_10', 'robot_2')]
+    m = match_pair(0, 1, *(prepare(g, 0.05, s.feature) for g in later), s)
+    assert m.accepted, m.reason
+    true_m = tf.inverse(tf.rigid(*starts['robot_2'])) @ tf.rigid(*starts['robot_10'])   # metric map_10 -> map_2
+    rot, cells = _corner_error(later[0], m.transform_m, true_m)
+    assert rot < 1.0 and cells < 3.0, (rot, cells)
+
+
 def test_opposite_angles_correlated_from_one_turned_image_score_as_if_each_was_turned(repo_root):
     """The search correlates an angle half a turn from another by mirroring that one's turned image (two DFTs less):
     on a robot's map and a union from a live demo, every angle of the sweep gets the same best score, at the same

@@ -25,6 +25,7 @@ from .memory import EstimationMemory, unchanged
 from .pair import PairMatch
 from .polish import polish
 from .refine import icp
+from .relax import relax
 from .settings import EstimationSettings
 from .union import Box, compose_near, footprint, most_overlapping, overlap_area
 from .verify import pair_confidence, plausible, refusal, verify
@@ -178,6 +179,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
             for k in placed:
                 if k != reference:
                     placed[k] = correction[0] @ placed[k]
+    relaxed = relax_placed(placed, reference, grids, prepared, footprints, s, memory, names)
     for c in checks.values():
         if c.transform is None:
             log.info('grid %d: %s', c.k, c.match.reason)
@@ -186,7 +188,34 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
     for k in placed:
         if k in rechecked and rechecked[k].transform is not None:
             memory.checks.put(names[k], Verdict(grids[k], placed[k], seen(k), rechecked[k].match))
+        elif k in relaxed and k != reference:
+            # a verdict that stood holds for the placement refined with the others: the walls of every pair fit
+            # better there (relax.py), and a verdict lost at each relaxation would make every check again
+            verdict = memory.checks.get(names[k])
+            if verdict is not None:
+                memory.checks.put(names[k], verdict._replace(transform=placed[k]))
     return placed, list(checks.values())
+
+
+def relax_placed(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
+                 prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box], s: EstimationSettings,
+                 memory: EstimationMemory, names: Sequence) -> set:
+    """Refine the kept placements together (relax.py), in place; the grids moved. Again only once a placed map has
+    grown or changed as much as a verdict on it allows (memory.unchanged), or the placed maps are others: on maps
+    that barely changed it would find what it found last time."""
+    if len(placed) < 3:
+        return set()   # two grids: the pair's own check refines them together
+    last = memory.relaxed
+    if last is not None and set(last) == {names[k] for k in placed} \
+            and all(memory.unchanged(last[names[k]], grids[k]) for k in placed):
+        return set()
+    memory.relaxed = {names[k]: grids[k] for k in placed}
+    out = relax(placed, reference, grids, prepared, footprints, s.min_overlap_m2, s.seed)
+    if out is None:
+        return set()
+    moved = {k for k in placed if not np.allclose(out[k], placed[k])}
+    placed.update(out)
+    return moved
 
 
 def least_agreeing(failed: Sequence[Check]) -> Check:
