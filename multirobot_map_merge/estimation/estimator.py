@@ -33,7 +33,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .settings import EstimationSettings
 from .tracking import track
-from .union import footprint
+from .union import known_corners
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 
@@ -188,7 +188,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     if fresh.reference != result.reference or not kept <= {k for k, t in enumerate(fresh.transforms)
                                                            if t is not None}:
         return result
-    moved = max(tf.difference(fresh.transforms[k], result.transforms[k], _corners(grids[k]))[1] for k in kept)
+    moved = max(tf.difference(fresh.transforms[k], result.transforms[k], known_corners(grids[k]))[1]
+                for k in kept)
     placed = sum(t is not None for t in fresh.transforms)
     if placed == len(kept) and moved <= FRESH_MOVE_M:
         log.debug('the final maps estimated afresh: the same placements (moved by up to %.3f m)', moved)
@@ -199,13 +200,6 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     return fresh
 
 
-def _corners(grid: Grid) -> np.ndarray:
-    """The corners of the box around a grid's known part, metres of its map frame."""
-    box = footprint(grid, np.eye(3))
-    if box is None:
-        return np.zeros((0, 2))
-    x0, y0, x1, y1 = box
-    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
 
 
 def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],

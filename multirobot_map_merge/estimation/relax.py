@@ -20,7 +20,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, opposed
-from .union import Box, footprint, overlap_area
+from .union import Box, known_corners, overlap_area
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.relax')
 
@@ -82,12 +82,6 @@ def _fits(pairs, samples, prepared, placed) -> int:
     return n
 
 
-def _corners(grid: Grid) -> np.ndarray:
-    box = footprint(grid, np.eye(3))
-    if box is None:
-        return np.zeros((1, 2))
-    x0, y0, x1, y1 = box
-    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
 
 
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
@@ -166,7 +160,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
             if np.abs(step[0::3]).max(initial=0) < STILL_M and np.abs(step[1::3]).max(initial=0) < STILL_M \
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break
-    moved = max(tf.difference(out[k], placed[k], _corners(grids[k]))[1] for k in moving)
+    moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
     before, after = _fits(fitted, samples, prepared, placed), _fits(fitted, samples, prepared, out)
     if moved > MAX_MOVE_M or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)

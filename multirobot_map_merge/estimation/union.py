@@ -33,6 +33,15 @@ def footprint(grid: Grid, transform: np.ndarray) -> Optional[Box]:
     return float(x0), float(y0), float(x1), float(y1)
 
 
+def known_corners(grid: Grid) -> np.ndarray:
+    """The corners of the box around a grid's known part, metres of its map frame (none for an empty grid)."""
+    box = footprint(grid, np.eye(3))
+    if box is None:
+        return np.zeros((0, 2))
+    x0, y0, x1, y1 = box
+    return np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
+
+
 def overlap_area(a: Optional[Box], b: Optional[Box]) -> float:
     if a is None or b is None:
         return 0.0
