@@ -1,6 +1,6 @@
 """explore in large buildings: ~path_distance (frontiers ranked by their distance along free space), the progress
 clock of a goal area that the robot leaves and comes back to (the two causes of goal thrashing), and the team map's
-frontiers for a robot that has none of its own left."""
+frontiers, ranked together with the robot's own."""
 import math
 
 import numpy as np
@@ -107,7 +107,7 @@ def test_an_area_left_for_longer_than_the_timeout_starts_afresh():
     assert res.blacklisted == [a.centroid]
 
 
-# ---- the team map's frontiers: work for a robot whose own frontiers are all mapped by teammates ------------------
+# ---- the team map's frontiers: the part of the building only teammates' maps show -------------------------------
 
 def team_grid():
     """A corridor 10 m x 1 m (0.1 m cells) known free up to x = 6 m in the team frame, unknown beyond; its
