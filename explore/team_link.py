@@ -1,9 +1,10 @@
 """The ROS side of fleet coordination (an extension; see team.py for the pure part and doc/explore.md).
 
 Subscribes ``team_topic`` (teammates' goals, geometry_msgs/PoseStamped in ``team_frame``; all-zero orientation:
-the sender has no goal any more; position.z: the sender's remaining distance to its goal in m, 0 if unknown) and ``team_map_topic`` (the team's merged map), publishes this robot's goal on
-``team_topic``, and moves points between the robot's map frame and the team frame through tf. Kept apart from the
-planning loop because all of it is optional and waits on tf that map_merge only provides once it placed the robot.
+the sender has no goal any more; position.z: the sender's remaining distance to its goal in m, 0 if unknown) and
+``team_map_topic`` (the team's merged map), publishes this robot's goal on ``team_topic``, and moves points between
+the robot's map frame and the team frame through tf. Kept apart from the planning loop because all of it is
+optional and waits on tf that map_merge only provides once it placed the robot.
 """
 from __future__ import annotations
 
