@@ -37,7 +37,7 @@ from explore.frontier_search import FrontierSearch  # noqa: E402
 from explore.goal_logic import ABORTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty  # noqa: E402
 from explore.params import ExploreParams  # noqa: E402
 from explore.team import (TeamGoals, costmap_known_at, drop_explored_by_team, mask_known_at,  # noqa: E402
-                          team_frontiers)
+                          rank_with_team, team_frontiers)
 from fleet_sim.mapping import compose, relative_pose  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
 from multirobot_map_merge.grid import Grid  # noqa: E402
@@ -70,6 +70,7 @@ class Explorer:
         self.team = TeamGoals(name)
         self.goal: Optional[Tuple[float, float]] = None     # map frame
         self.chosen_at = math.inf
+        self.goal_distance = math.inf                       # remaining distance to the goal at the latest plan, m
         self.exploring = True
         self.next_tick = 1.0 / params.planner_frequency    # the timer's first tick is one period after start
         self.replan = False
@@ -125,21 +126,23 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
                 frontiers = drop_explored_by_team(frontiers, ex.cm.data, ex.cm.resolution,
                                                   (ex.cm.origin_x, ex.cm.origin_y), known_at_for(i))
             extra = []
-            if team_map[i] is not None and ex.logic.select(frontiers, ex.cm.resolution) is None:
+            if team_map[i] is not None:
                 extra = team_frontiers(team_map[i], ex.cm.table, robot.pose[:2], tf.inverse(tf.rigid(*robot.start)),
                                        params.potential_scale, params.gain_scale, params.min_frontier_size,
                                        params.path_distance,
                                        costmap_known_at(ex.cm.data, ex.cm.resolution, (ex.cm.origin_x, ex.cm.origin_y)))
             for j, other in enumerate(explorers):
                 if j != i and j in merged_with[i]:
-                    ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t)
-            active = ex.team.active(sim.t, world_goal(i), ex.chosen_at, params.team_radius)
+                    ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t, other.goal_distance)
+            active = ex.team.active(sim.t, world_goal(i), ex.chosen_at, params.team_radius, ex.goal_distance)
             goals = [relative_pose(robot.start, (g.point[0], g.point[1], 0.0))[:2] for g in active]
+            remaining = [g.distance for g in active]
             heading = ex.goal if ex.goal is not None else (x, y)
-            frontiers = (apply_team_penalty(frontiers, goals, params.team_radius, heading)
-                         + apply_team_penalty(extra, goals, params.team_radius, heading))
+            frontiers = apply_team_penalty(rank_with_team(frontiers, extra), goals, params.team_radius, heading,
+                                           remaining)
         result = ex.logic.plan(frontiers, ex.cm.resolution, sim.t, team_busy=coordinated and bool(goals))
         ex.timed_out += len(result.blacklisted)
+        ex.goal_distance = result.frontier.min_distance if result.frontier is not None else math.inf
         if result.action is PlanAction.WAIT:
             ex.goal, ex.chosen_at = None, math.inf
             robot.cancel()

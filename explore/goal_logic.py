@@ -214,12 +214,20 @@ class GoalLogic:
 
 
 def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Sequence[float]],
-                       team_radius: float, heading: Optional[Sequence[float]] = None) -> List[Frontier]:
-    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal, and,
-    with ``heading`` (this robot's own goal, or its position when it has none), those nearer (straight line) to a
-    teammate's goal than to ``heading``: the teammate will be there first, so a far frontier is left to the robot
-    heading nearest to it. Goals are compared with goals so that two robots agree which of them a frontier is
-    left to (comparing a teammate's goal with one's own position, both could leave it to the other).
+                       team_radius: float, heading: Optional[Sequence[float]] = None,
+                       team_distances: Optional[Sequence[float]] = None) -> List[Frontier]:
+    """Demote frontiers whose centroid is within ``team_radius`` (strict) of another robot's current goal, and
+    those a teammate will reach first: the teammate will be there first, so a far frontier is left to the robot
+    nearest to it. Who is first, per teammate goal ``g``:
+
+    - with the teammate's remaining distance to ``g`` (``team_distances``, inf: unknown) and the frontier's
+      distance from this robot (``min_distance``): the teammate if its remaining distance plus the straight line
+      from ``g`` to the centroid is shorter. This robot's own distance, not its goal, counts: a robot that chose a
+      far goal must not keep the frontiers there from a teammate standing next to them;
+    - else, with ``heading`` (this robot's own goal, or its position when it has none): the teammate if the centroid
+      is nearer (straight line) to ``g`` than to ``heading``. Goals are compared with goals so that two robots agree
+      which of them a frontier is left to (comparing a teammate's goal with one's own position, both could leave
+      it to the other).
 
     Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
     penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
@@ -229,14 +237,24 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     """
     if not team_goals or not frontiers:
         return list(frontiers)
+    distances = list(team_distances) if team_distances is not None else [math.inf] * len(team_goals)
     finite = [f.cost for f in frontiers if math.isfinite(f.cost)]
     penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
     keyed = []
     for f in frontiers:
         own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
-        near = any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < max(team_radius, own)
-                   for g in team_goals)
+        near = any(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
         g = replace(f, cost=f.cost + penalty) if near else f
         keyed.append(((near, math.isnan(g.cost), g.cost), g))
     keyed.sort(key=lambda kv: kv[0])
     return [g for _, g in keyed]
+
+
+def _left_to(f: Frontier, goal: Sequence[float], remaining: float, team_radius: float, own_heading: float) -> bool:
+    """True if frontier ``f`` is left to the teammate heading for ``goal`` (see apply_team_penalty)."""
+    to_goal = math.hypot(f.centroid[0] - goal[0], f.centroid[1] - goal[1])
+    if to_goal < team_radius:
+        return True
+    if math.isfinite(remaining) and math.isfinite(f.min_distance):
+        return remaining + to_goal < f.min_distance
+    return to_goal < own_heading

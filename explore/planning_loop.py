@@ -22,7 +22,7 @@ from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
 from .nav_client import NavClient, pose_goal, status_name
 from .params import ExploreParams
-from .team import costmap_known_at, drop_explored_by_team
+from .team import costmap_known_at, drop_explored_by_team, rank_with_team
 from .team_link import TeamLink
 
 Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
@@ -49,6 +49,7 @@ class PlanningLoop:
         self._timer: Optional[rospy.Timer] = None
         self._goal: Optional[Tuple[float, float]] = None   # current exploration goal (global frame)
         self._goal_chosen_at = math.inf                    # ROS time it was chosen
+        self._goal_distance = math.inf                     # remaining distance to it at the latest plan, m
         self._marker_count = 0
         self.client: Optional[NavClient] = None   # both set by start(), once the node has them
         self.team: Optional[TeamLink] = None
@@ -143,22 +144,22 @@ class PlanningLoop:
                                                   team_known)
                 rospy.logdebug('explore: %d of %d frontiers already mapped by the team', found - len(frontiers),
                                found)
-            # nothing left of its own: the team map's frontiers, ranked after any of its own
+            # the team map's frontiers are ranked together with its own (team.py says why)
             own_known = (costmap_known_at(cm.data.copy(), resolution, (cm.origin_x, cm.origin_y))
-                         if team_known is not None and self.logic.select(frontiers, resolution) is None else None)
+                         if team_known is not None else None)
         extra: List[Frontier] = [] if own_known is None else self.team.frontiers(frame, pose[:2], cm.table, own_known)
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
-            self._publish_markers(frontiers, frame, resolution)
-        team_goals: List[Tuple[float, float]] = []
+            self._publish_markers(frontiers, frame, resolution)   # the own map's, as the original
+        frontiers = rank_with_team(frontiers, extra)
+        team_goals: List[Tuple[Tuple[float, float], float]] = []
         if self.team.goals is not None:
-            team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at)
+            team_goals = self.team.active_goals(frame, now, self._goal, self._goal_chosen_at, self._goal_distance)
             heading = self._goal if self._goal is not None else (pose[0], pose[1])
-            frontiers = (apply_team_penalty(frontiers, team_goals, self.p.team_radius, heading)
-                         + apply_team_penalty(extra, team_goals, self.p.team_radius, heading))
-        else:
-            frontiers = frontiers + extra
+            points, remaining = [g for g, _ in team_goals], [d for _, d in team_goals]
+            frontiers = apply_team_penalty(frontiers, points, self.p.team_radius, heading, remaining)
         result = self.logic.plan(frontiers, resolution, now, team_busy=bool(team_goals))
+        self._goal_distance = result.frontier.min_distance if result.frontier is not None else math.inf
         if result.action is PlanAction.WAIT:
             if self._goal is not None:
                 rospy.loginfo('explore: every frontier left is blacklisted; waiting while teammates explore')
@@ -209,4 +210,4 @@ class PlanningLoop:
         rospy.loginfo(publish_note)
 
     def _publish_team_goal(self, frame: str) -> None:
-        self.team.publish_goal(frame, self._goal, self._goal_chosen_at)
+        self.team.publish_goal(frame, self._goal, self._goal_chosen_at, self._goal_distance)

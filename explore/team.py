@@ -4,9 +4,12 @@ Each explorer publishes its current goal in a shared frame (``team_frame``) and 
 teammate here. Planning demotes frontiers near those goals (``goal_logic.apply_team_penalty``) and, with a merged
 map of the team, skips frontiers whose far side a teammate has already mapped (``drop_explored_by_team``).
 
-Who yields: when two robots head for the same area, the robot that chose its goal first keeps it. A teammate's goal
-within ``radius`` of this robot's own current goal is ignored if it was chosen later (ties: the larger name yields),
-so exactly one of the two moves on instead of both switching back and forth.
+Who yields: when two robots head for the same area, the robot nearer to it (its remaining distance to its goal, which
+each explorer publishes with the goal) keeps it; when a distance is unknown, the robot that chose its goal first. A
+teammate's goal within ``radius`` of this robot's own current goal is ignored if this robot wins (ties: the larger
+name yields), so exactly one of the two moves on instead of both switching back and forth. By distance rather than
+by time because a robot far away that happens to choose a frontier first would otherwise keep a teammate standing
+next to it away.
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ class TeamGoal:
     point: Point2      # goal in the team frame
     chosen_at: float   # ROS time the goal was chosen (the message stamp), s
     received_at: float  # ROS time of the latest message, s
+    distance: float = math.inf   # the sender's remaining distance to its goal, m (inf: unknown)
 
 
 class TeamGoals:
@@ -46,9 +50,10 @@ class TeamGoals:
         self._lock = threading.Lock()
         self._goals: Dict[str, TeamGoal] = {}
 
-    def update(self, sender: str, point: Optional[Point2], chosen_at: float, received_at: float) -> bool:
-        """Store a teammate's goal (``point`` None: the teammate has no goal any more). Own messages and
-        non-finite points are ignored; returns True if stored."""
+    def update(self, sender: str, point: Optional[Point2], chosen_at: float, received_at: float,
+               distance: float = math.inf) -> bool:
+        """Store a teammate's goal (``point`` None: the teammate has no goal any more) and its remaining distance to
+        it (inf: unknown). Own messages and non-finite points are ignored; returns True if stored."""
         if sender == self.own_name:
             return False
         with self._lock:
@@ -57,14 +62,16 @@ class TeamGoals:
                 return True
             if not (math.isfinite(point[0]) and math.isfinite(point[1]) and math.isfinite(chosen_at)):
                 return False
-            self._goals[sender] = TeamGoal(sender, (float(point[0]), float(point[1])), chosen_at, received_at)
+            d = float(distance) if distance >= 0.0 else math.inf   # NaN and negative: unknown
+            self._goals[sender] = TeamGoal(sender, (float(point[0]), float(point[1])), chosen_at, received_at, d)
             return True
 
     def active(self, now: float, own_goal: Optional[Point2] = None, own_chosen_at: float = math.inf,
-               radius: float = 0.0) -> List[TeamGoal]:
+               radius: float = 0.0, own_distance: float = math.inf) -> List[TeamGoal]:
         """Teammates' goals that count now: not stale, and not yielding to this robot's own goal (see module doc).
 
-        ``own_goal`` is in the team frame (None if this robot has no goal or it cannot be expressed there).
+        ``own_goal`` is in the team frame (None if this robot has no goal or it cannot be expressed there);
+        ``own_distance`` is this robot's remaining distance to it (inf: unknown).
         """
         with self._lock:
             for k in [k for k, g in self._goals.items() if now - g.received_at > self.stale_after]:
@@ -72,12 +79,22 @@ class TeamGoals:
             goals = sorted(self._goals.values(), key=lambda g: g.sender)
         if own_goal is None:
             return goals
-        return [g for g in goals if not (_near(g.point, own_goal, radius) and
-                                         (g.chosen_at, g.sender) > (own_chosen_at, self.own_name))]
+
+        def yields(g: TeamGoal) -> bool:
+            return (claim_key(g.distance, g.chosen_at, g.sender, own_distance)
+                    > claim_key(own_distance, own_chosen_at, self.own_name, g.distance))
+        return [g for g in goals if not (_near(g.point, own_goal, radius) and yields(g))]
 
     def senders(self) -> List[str]:
         with self._lock:
             return sorted(self._goals)
+
+
+def claim_key(distance: float, chosen_at: float, name: str, other_distance: float) -> Tuple[float, float, str]:
+    """Order of two claims on one area (the smaller keeps it): the remaining distance when both robots published
+    one, else the time the goal was chosen; the name breaks ties. Both robots compute the same order."""
+    by_distance = math.isfinite(distance) and math.isfinite(other_distance)
+    return (distance if by_distance else 0.0, chosen_at, name)
 
 
 def _near(a: Point2, b: Point2, radius: float) -> bool:
@@ -153,8 +170,10 @@ def grid_known_at(grid: Grid, team_from_map: np.ndarray) -> KnownAt:
 
 
 # --- the team map's frontiers -----------------------------------------------------------------------------------------
-# A robot whose own frontiers are all mapped by teammates (or blacklisted) would stop while the team still has
-# unexplored space it cannot see in its own map; it takes the frontiers of the team's merged map instead. A team
+# A robot sees in its own map only the frontiers of the space it has mapped itself. Choosing among those alone, a
+# robot keeps finishing small leftovers near it while a large unexplored part of the building, which only the team
+# map shows, is left to the one teammate that happens to be there. So the team map's frontiers are ranked together
+# with the robot's own (rank_with_team); the team penalty then leaves to a teammate what it reaches first. A team
 # frontier that the robot's own map already knows beyond (the merged map lags behind, or places a map wrongly) is
 # not trusted: its own map is what it saw.
 
@@ -193,6 +212,12 @@ def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_fro
         out.append(replace(f, points=points, centroid=(float(centroid[0]), float(centroid[1])),
                            initial=(float(initial[0, 0]), float(initial[0, 1])), middle=tuple(move(f.middle)[0])))
     return out
+
+
+def rank_with_team(own: Sequence[Frontier], team: Sequence[Frontier]) -> List[Frontier]:
+    """The robot's own frontiers and the team map's (``team_frontiers``, same frame) in one cost order; stable, so
+    on equal costs its own come first, and NaN costs last."""
+    return sorted([*own, *team], key=lambda f: (math.isnan(f.cost), f.cost))
 
 
 def costmap_known_at(data: np.ndarray, resolution: float, origin: Point2) -> KnownAt:

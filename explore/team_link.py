@@ -1,9 +1,10 @@
 """The ROS side of fleet coordination (an extension; see team.py for the pure part and doc/explore.md).
 
 Subscribes ``team_topic`` (teammates' goals, geometry_msgs/PoseStamped in ``team_frame``; all-zero orientation:
-the sender has no goal any more) and ``team_map_topic`` (the team's merged map), publishes this robot's goal on
-``team_topic``, and moves points between the robot's map frame and the team frame through tf. Kept apart from the
-planning loop because all of it is optional and waits on tf that map_merge only provides once it placed the robot.
+the sender has no goal any more; position.z: the sender's remaining distance to its goal in m, 0 if unknown) and
+``team_map_topic`` (the team's merged map), publishes this robot's goal on ``team_topic``, and moves points between
+the robot's map frame and the team frame through tf. Kept apart from the planning loop because all of it is
+optional and waits on tf that map_merge only provides once it placed the robot.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from .team import KnownAt, TeamGoals, grid_known_at, team_frontiers
 
 Point2 = Tuple[float, float]
 HAS_GOAL = (0.0, 0.0, 0.0, 1.0)   # orientation of a published goal (all zeros: withdrawn)
+MIN_DISTANCE = 1e-3               # m: a robot at its goal publishes this remaining distance, not 0 (unknown)
 
 
 class TeamLink:
@@ -63,7 +65,9 @@ class TeamLink:
             return
         withdrawn = q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0   # all-zero quaternion: no goal
         point = None if withdrawn else (msg.pose.position.x, msg.pose.position.y)
-        self.goals.update(sender, point, msg.header.stamp.to_sec(), rospy.get_time())
+        z = msg.pose.position.z   # a goal is planar: z carries the remaining distance (0: not sent, unknown)
+        self.goals.update(sender, point, msg.header.stamp.to_sec(), rospy.get_time(),
+                          z if z > 0.0 and math.isfinite(z) else math.inf)
 
     def _on_team_map(self, msg: OccupancyGrid) -> None:
         try:
@@ -111,10 +115,11 @@ class TeamLink:
         return team_frontiers(grid, table, (robot[0], robot[1]), np.linalg.inv(team_from_own), p.potential_scale,
                               p.gain_scale, p.min_frontier_size, p.path_distance, own_known_at)
 
-    def active_goals(self, frame: str, now: float, own_goal: Optional[Point2],
-                     own_chosen_at: float) -> List[Point2]:
-        """Teammates' current goals in ``frame`` (the map frame); [] while the team frame is not in tf.
-        ``own_goal`` (in ``frame``, chosen at ROS time ``own_chosen_at``) decides who yields (team.py)."""
+    def active_goals(self, frame: str, now: float, own_goal: Optional[Point2], own_chosen_at: float,
+                     own_distance: float = math.inf) -> List[Tuple[Point2, float]]:
+        """Teammates' current goals in ``frame`` (the map frame) with their remaining distances (inf: unknown); []
+        while the team frame is not in tf. ``own_goal`` (in ``frame``, chosen at ROS time ``own_chosen_at``, this
+        robot ``own_distance`` from it) decides who yields (team.py)."""
         t = self._lookup(frame, self.p.team_frame)
         if t is None:
             return []
@@ -122,11 +127,13 @@ class TeamLink:
         if own_goal is not None:
             back = self._lookup(self.p.team_frame, frame)
             own = _apply(back, own_goal) if back is not None else None
-        goals = self.goals.active(now, own, own_chosen_at, self.p.team_radius)
-        return [_apply(t, g.point) for g in goals]
+        goals = self.goals.active(now, own, own_chosen_at, self.p.team_radius, own_distance)
+        return [(_apply(t, g.point), g.distance) for g in goals]
 
-    def publish_goal(self, frame: str, goal: Optional[Point2], chosen_at: float) -> None:
-        """Tell teammates this robot's goal (in ``frame``), or that it has none (``goal`` None)."""
+    def publish_goal(self, frame: str, goal: Optional[Point2], chosen_at: float,
+                     distance: float = math.inf) -> None:
+        """Tell teammates this robot's goal (in ``frame``) and its remaining distance to it, or that it has none
+        (``goal`` None)."""
         if self._pub is None:
             return
         msg = PoseStamped()
@@ -139,6 +146,8 @@ class TeamLink:
                 return
             msg.header.stamp = rospy.Time.from_sec(chosen_at)
             msg.pose.position.x, msg.pose.position.y = _apply(t, goal)
+            if math.isfinite(distance):
+                msg.pose.position.z = max(distance, MIN_DISTANCE)   # 0 would read as unknown
             msg.pose.orientation = Quaternion(*HAS_GOAL)
         self._pub.publish(msg)
 

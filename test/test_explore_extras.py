@@ -87,6 +87,25 @@ def test_later_goal_near_own_goal_yields():
     assert a2.active(11.0, (5.0, 5.0), 10.0, 3.0) == [] and len(b2.active(11.0, (5.0, 5.0), 10.0, 3.0)) == 1
 
 
+def test_nearer_robot_keeps_a_contested_goal_whoever_chose_first():
+    """Two robots heading for the same area with known remaining distances: the nearer one keeps it although the
+    other chose first, and both agree (exactly one of them counts the other's goal)."""
+    a, b = TeamGoals('/a'), TeamGoals('/b')
+    a.update('/b', (5.2, 5.0), 20.0, 21.0, distance=2.0)    # b chose later but is 2 m away
+    b.update('/a', (5.0, 5.0), 10.0, 21.0, distance=30.0)   # a chose first, 30 m away
+    assert [g.sender for g in a.active(22.0, (5.0, 5.0), 10.0, 3.0, own_distance=30.0)] == ['/b']
+    assert b.active(22.0, (5.2, 5.0), 20.0, 3.0, own_distance=2.0) == []
+
+
+@pytest.mark.parametrize('missing', [math.inf, math.nan, -1.0])
+def test_unknown_distance_falls_back_to_who_chose_first(missing):
+    a, b = TeamGoals('/a'), TeamGoals('/b')
+    a.update('/b', (5.2, 5.0), 20.0, 21.0, distance=2.0)
+    b.update('/a', (5.0, 5.0), 10.0, 21.0, distance=missing)   # a sent no usable distance
+    assert a.active(22.0, (5.0, 5.0), 10.0, 3.0) == []         # a chose first and keeps it
+    assert [g.sender for g in b.active(22.0, (5.2, 5.0), 20.0, 3.0, own_distance=2.0)] == ['/a']
+
+
 # ---- coverage ------------------------------------------------------------------------------------------------------
 
 def _world():

@@ -190,6 +190,25 @@ def test_frontier_nearer_to_a_teammates_goal_is_left_to_it():
     assert apply_team_penalty([near_goal, far_mine], [(2.5, 0.0)], 3.0, robot)[0] is far_mine
 
 
+def test_frontier_a_teammate_reaches_first_is_left_to_it_whatever_this_robot_chose():
+    """With the teammates' remaining distances, a frontier is left to a teammate whose remaining distance plus the
+    way from its goal is shorter than this robot's own distance to it, even when this robot's goal is right there
+    (a robot that chose a far goal first must not keep it from a teammate next to it)."""
+    heading = (40.0, 5.0)                                  # this robot chose a goal 38 m away
+    far = frontier(40.0, 5.0, -10.0, min_distance=38.0)
+    near = frontier(2.0, 0.0, -1.0, min_distance=2.0)
+    teammate = [(39.0, 5.0)]                               # 5 m from its goal, 1 m from the far frontier
+    out = apply_team_penalty([far, near], teammate, 0.5, heading, [5.0])
+    assert [f.centroid for f in out] == [(2.0, 0.0), (40.0, 5.0)]
+    # the goal-to-goal rule (no distances) keeps the far frontier first: it is nearer to this robot's goal
+    assert apply_team_penalty([far, near], teammate, 0.5, heading)[0] is far
+    # a teammate still 60 m from its goal would come later: the frontier stays this robot's
+    assert apply_team_penalty([far, near], teammate, 0.5, heading, [60.0])[0] is far
+    # an unknown distance (inf) falls back to the goal-to-goal rule; team_radius holds in any case
+    assert apply_team_penalty([far, near], teammate, 0.5, heading, [math.inf])[0] is far
+    assert apply_team_penalty([far, near], teammate, 3.0, heading, [60.0])[0] is near
+
+
 def test_penalised_frontier_chosen_when_others_blacklisted():
     logic = GoalLogic(progress_timeout=30.0)
     fs = apply_team_penalty([frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -1.0)], [(0.0, 0.5)], 3.0)

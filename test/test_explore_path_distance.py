@@ -1,6 +1,6 @@
 """explore in large buildings: ~path_distance (frontiers ranked by their distance along free space), the progress
 clock of a goal area that the robot leaves and comes back to (the two causes of goal thrashing), and the team map's
-frontiers for a robot that has none of its own left."""
+frontiers, ranked together with the robot's own."""
 import math
 
 import numpy as np
@@ -107,7 +107,7 @@ def test_an_area_left_for_longer_than_the_timeout_starts_afresh():
     assert res.blacklisted == [a.centroid]
 
 
-# ---- the team map's frontiers: work for a robot whose own frontiers are all mapped by teammates ------------------
+# ---- the team map's frontiers: the part of the building only teammates' maps show -------------------------------
 
 def team_grid():
     """A corridor 10 m x 1 m (0.1 m cells) known free up to x = 6 m in the team frame, unknown beyond; its
@@ -162,3 +162,22 @@ def test_known_raster_values_place_the_occupancy():
     assert out[3:5, 2:4].tolist() == data.tolist()
     assert np.count_nonzero(out != -1) == 3                      # -1 wherever the map has no (known) cell
     assert (raster.values(grid, (2.0, 3.0, 0.0)) >= 0).tolist() == raster.known(grid, (2.0, 3.0, 0.0)).tolist()
+
+
+def _frontier(x, cost, size=10, min_distance=1.0):
+    return Frontier(size=size, min_distance=min_distance, cost=cost, initial=(x, 0.0), centroid=(x, 0.0),
+                    middle=(x, 0.0), points=np.zeros((size - 1, 2)))
+
+
+def test_team_frontiers_rank_with_the_own_by_cost():
+    """A large unexplored part that only the team map shows outranks a small leftover of the robot's own map (the
+    robot does not finish every leftover near it while one teammate explores the rest of the building alone)."""
+    from explore.team import rank_with_team
+    scrap = _frontier(1.0, cost=-0.5, size=15, min_distance=2.0)
+    own_big = _frontier(3.0, cost=-4.0, size=90, min_distance=3.0)
+    wing = _frontier(30.0, cost=-10.0, size=300, min_distance=30.0)
+    tie = _frontier(9.0, cost=-4.0)
+    assert rank_with_team([own_big, scrap], [wing, tie]) == [wing, own_big, tie, scrap]   # own first on a tie
+    nan = _frontier(5.0, cost=math.nan)
+    assert rank_with_team([nan, scrap], []) == [scrap, nan]
+    assert rank_with_team([], []) == []
