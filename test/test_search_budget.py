@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.estimator import estimate
+from multirobot_map_merge.estimation.estimator import POSTPONED_ROUNDS, estimate
 from multirobot_map_merge.estimation.features import FeatureCache, prepare
 from multirobot_map_merge.estimation.memory import EstimationMemory
 from multirobot_map_merge.estimation.pair import SEARCH_POSTPONED, match_pair
@@ -67,16 +67,19 @@ def test_a_spent_search_budget_leaves_maps_out_never_places_them_worse(repo_root
 def test_the_searches_a_spent_budget_postponed_are_made_by_the_next_estimation_on_the_same_maps(repo_root):
     """Six early maps of a live demo: only two pair by descriptors, the others need searches and matches between
     groups. With a budget spent by the first search, each estimation on them spent it on a search whose result the
-    next one forgot (eight estimations, still two placed); the estimation after one that postponed searches on the
-    same maps makes them all, and every map is placed right."""
+    next one forgot (eight estimations, still two placed); each estimation after one that postponed searches on the
+    same maps has twice its budget and the last of POSTPONED_ROUNDS none, so that they are all made, and every map
+    is placed right."""
     grids, poses = _maps(repo_root, 'demo_late_group')
     names = [f'robot_{k + 1}' for k in range(len(grids))]
     s, memory, cache = EstimationSettings(evict=False, search_budget_s=ONE_SEARCH), EstimationMemory(), FeatureCache()
     previous, reference, results = [None] * len(grids), None, []
-    for _ in range(3):
+    for _ in range(1 + POSTPONED_ROUNDS):   # twice the budget after one that postponed, then no limit
         results.append(estimate(grids, s, cache, preferred_reference=reference, previous=previous, memory=memory,
                                 names=names))
         previous, reference = list(results[-1].transforms), results[-1].reference
+        if not results[-1].postponed:
+            break
     assert results[0].postponed > 0 and sum(t is not None for t in results[0].transforms) < len(grids)
     last = results[-1]
     assert last.postponed == 0 and all(t is not None for t in last.transforms)

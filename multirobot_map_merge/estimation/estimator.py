@@ -41,6 +41,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 # by more (or places more maps); below, the two differ by the usual noise (a few cm) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
+POSTPONED_ROUNDS = 3   # estimations in a row on the same maps with searches postponed before one has no budget
 
 
 @dataclass
@@ -170,10 +171,16 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     # robots) past its 5 s bound; this one's tracking finds every verdict standing
     due = settled and memory.settled_inputs == inputs and memory.fresh_inputs != inputs
     if settled and memory.postponed_inputs == inputs:
-        # the last estimation's budget left searches undone on these same maps: this one makes them all, so that a
-        # cut only delays (with the budget, every estimation of static maps could spend it on the same search
-        # again: the six maps of test/data/demo_late_group stayed at two placed in eight estimations)
-        settings = settings.replace(search_budget_s=math.inf)
+        # the last estimation's budget left searches undone on these same maps: this one has twice the budget of
+        # that one, and the POSTPONED_ROUNDS-th no limit, so that a cut only delays (with the same budget, every
+        # estimation of static maps could spend it on the same search again: the six maps of
+        # test/data/demo_late_group stayed at two placed in eight estimations); not unlimited at once: every search
+        # on 30 robots' first tiny maps in one estimation took 5.3 s
+        memory.postponed_rounds += 1
+        budget = settings.search_budget_s * 2 ** memory.postponed_rounds
+        settings = settings.replace(search_budget_s=budget if memory.postponed_rounds < POSTPONED_ROUNDS else math.inf)
+    elif memory is not None:
+        memory.postponed_rounds = 0
     result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents)
     if inputs is not None:
         for n, c in inputs:

@@ -85,7 +85,7 @@ class EstimationMemory:
     in the last estimation that tracked placements; settled_inputs: the (name, content key) pairs of the last
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
     (estimator.py); postponed_inputs: the pairs of the last estimation if its search budget left searches to a later
-    one, else None; relaxed: name -> map of the placements tracking last relaxed (relax.py)."""
+    one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last relaxed (relax.py)."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
@@ -93,6 +93,7 @@ class EstimationMemory:
         self.settled_inputs: Optional[tuple] = None
         self.fresh_inputs: Optional[tuple] = None
         self.postponed_inputs: Optional[tuple] = None
+        self.postponed_rounds = 0   # estimations in a row on those maps, each with twice the budget of the last
         self.relaxed: Optional[Dict[str, Grid]] = None
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
         self._compared_lock = threading.Lock()
