@@ -10,9 +10,10 @@ explore core exactly as the explore node uses it (same costmap translation, fron
 penalty; planning every 1/planner_frequency s of sim time and at once after a goal ends), in one process without
 ROS, so the figures do not depend on the machine's load. Configurations: 1 robot; N robots uncoordinated (each
 explores greedily on its own map, as explore_lite); N robots coordinated (team goals and the team's merged map
-shared in the world frame with the true transforms, i.e. a perfect map merge, once two robots' maps overlap). Seeds vary the start poses (and laser noise) on one world;
-the default building is the demo's (24 m x 16 m), the larger demo uses 48 m x 32 m. Each fleet's time is printed
-as a ratio of one robot's time on the same seed, and of the means.
+shared in the world frame with the true transforms, i.e. a perfect map merge, once two robots' maps overlap).
+Seeds vary the start poses (and laser noise) on one world; the default building is the demo's (24 m x 16 m), the
+larger demo uses 48 m x 32 m. Each fleet's time is printed as a ratio of one robot's time on the same seed, and of
+the means.
 """
 from __future__ import annotations
 
@@ -341,7 +342,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             aborted = ', '.join(f'{k} x{v}' for k, v in sorted(r['aborted'].items(), key=lambda kv: -kv[1]))
             print(f"{label(n, coord):26s} seed {seed}: t95 {r['t95']:7.1f} s sim  (explored {100 * r['share']:5.1f} "
                   f"% at {r['sim_t']:.0f} s, {r['goals']} goals, {r['timed_out']} timed out, aborted: "
-                  f"{aborted or 'none'}; stopped {r['stopped']} {r['stop_reasons']}; {r['milestones']}; {r['wall']:.1f} s wall)",
+                  f"{aborted or 'none'}; stopped {r['stopped']} {r['stop_reasons']}; {r['milestones']}; "
+                  f"{r['wall']:.1f} s wall)",
                   flush=True)
             if args.json:   # after every run, so a long grid keeps what it has measured
                 Path(args.json).write_text(json.dumps(runs, indent=1) + '\n')

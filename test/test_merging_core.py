@@ -198,7 +198,8 @@ def test_merge_maps_cli_bad_input_exits_2_with_one_line(repo_root, args, reason)
     assert len(lines) == 1 and reason in lines[0]
 
 
-@pytest.mark.parametrize('name', ['pair_large_simple_rooms_1', 'pair_large_tb3_sandbox_1', 'pair_large_uoa_robotics_lab_1'])
+@pytest.mark.parametrize('name', ['pair_large_simple_rooms_1', 'pair_large_tb3_sandbox_1',
+                                  'pair_large_uoa_robotics_lab_1'])
 def test_repetitive_and_few_descriptor_pairs_are_placed(shared_dir, name):
     """A shifted alias in a building of identical rooms overlaps more than the right placement, and a 180-degree
     alias in a symmetric arena agrees well: ranking by support less conflicts picks the right one and does not

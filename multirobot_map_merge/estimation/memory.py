@@ -85,7 +85,8 @@ class EstimationMemory:
     in the last estimation that tracked placements; settled_inputs: the (name, content key) pairs of the last
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
     (estimator.py); postponed_inputs: the pairs of the last estimation if its search budget left searches to a later
-    one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last relaxed (relax.py)."""
+    one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last
+    relaxed (relax.py)."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()

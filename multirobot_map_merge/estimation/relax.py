@@ -82,8 +82,6 @@ def _fits(pairs, samples, prepared, placed) -> int:
     return n
 
 
-
-
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box],
           min_overlap_m2: float = 0.0, seed: int = 0) -> Optional[Dict[int, np.ndarray]]:

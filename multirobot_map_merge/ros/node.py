@@ -31,9 +31,9 @@ shutdown request whatever still runs. Rates are checked positive at start (no ze
 takes longer than half its period (many robots) is followed by a rest of half the (wall) time it took, so that
 estimation uses at most about two thirds of the node's time and merging keeps its rate; the correlation searches of
 one estimation stop after params.SEARCH_BUDGET s (the rest are searched in the next ones; on the same maps each
-has twice the budget of the last, the third no limit), so that robots that match by descriptors join quickly; a cut only delays a robot, what
-is placed passes the same rules (estimation/growth.py). An unchanged merge (same maps, same transforms) is re-sent,
-not recomposed.
+has twice the budget of the last, the third no limit), so that robots that match by descriptors join quickly; a cut
+only delays a robot, what is placed passes the same rules (estimation/growth.py). An unchanged merge (same maps,
+same transforms) is re-sent, not recomposed.
 
 Differences from the original, on purpose (see also robot_maps.py): init poses are metres/radians of the robot map
 frame in the world unless `~legacy_cell_poses`; a malformed map or update is refused with a throttled warning naming

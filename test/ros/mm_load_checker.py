@@ -5,9 +5,9 @@ Keeps every core busy (~busy_per_core processes a core, each ending by itself af
 tearDown, at exit and on SIGINT/SIGTERM), publishes the robot maps itself (latched, one robot every ~robot_delay
 s), and checks every ~status the node publishes: each robot it includes is placed where the ground truth says
 (relative to the first included robot of ~robots, within ~tolerance_m / ~tolerance_deg), and its walls are walls of
-the merged map sent with that status (the same stamp: the merge cycle that sent it). A robot may be left out of a status (a
-search the time budget cut is made in a later estimation), never misplaced. Every robot must be included within
-~timeout s of the last map (a liveness bound, not a speed figure); then statuses are watched ~hold s more.
+the merged map sent with that status (the same stamp: the merge cycle that sent it). A robot may be left out of a
+status (a search the time budget cut is made in a later estimation), never misplaced. Every robot must be included
+within ~timeout s of the last map (a liveness bound, not a speed figure); then statuses are watched ~hold s more.
 
 Params: ~status_topic, ~merged_topic, ~robots (list of "ns=file.yaml" as mm_common; the checker publishes each on
 <ns>/map), ~truth (truth.json, or a recorded demo's start_poses.json), ~data_dir (optional: the folder the map and
