@@ -54,7 +54,8 @@ def test_evidence_is_when_the_true_placement_first_passes_the_rules(repo_root, t
 
 def test_pace_counts_a_placement_when_the_estimation_ends(repo_root, tmp_path):
     bag, summary = sample_bag(repo_root, tmp_path), summary_of(repo_root, tmp_path)
-    out = replay(repo_root, bag, '--summary', summary, '--pace', '5', '--contention', '3', '--more', '0')
+    # one estimation after the bag: the node's next one, which confirms the last new placements
+    out = replay(repo_root, bag, '--summary', summary, '--pace', '5', '--contention', '3', '--more', '1')
     spans = [(float(a), float(b)) for a, b in re.findall(r'^t\s+([\d.]+)-([\d.]+)', out, re.M)]
     assert spans, out
     # one at a time: the next starts when the last has ended (at once only for a new robot's first map)

@@ -27,6 +27,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
+from .confirmation import hold_new, with_held
 from .features import FeatureCache, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
@@ -55,6 +56,7 @@ class Estimate:
     seconds: float = 0.0
     tracked: int = 0   # grids whose previous placement was confirmed (tracking)
     postponed: int = 0   # searches the search budget left to a later estimation (settings.search_budget_s)
+    held: int = 0        # new placements left out until a later estimation confirms them (confirmation.py)
 
 
 def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSettings) -> float:
@@ -161,11 +163,45 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     maps near it, so small turns between neighbours can add up along a chain of robots (a live demo ended with one
     robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
     robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
-    in the same frame, and moves one of them by more than FRESH_MOVE_M or places more."""
+    in the same frame, and moves one of them by more than FRESH_MOVE_M or places more.
+
+    With a memory, a grid placed for the first time is left out until a later estimation confirms it
+    (confirmation.py)."""
+    count = len(grids)
+    published = previous
+    previous = with_held(previous, memory, names, preferred_reference, count)
     # each map's content, once: tracking's verdicts remember the contents of the maps they saw
     contents = [content_key(g) if g is not None else None for g in grids] if previous is not None else None
     inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
     settled = inputs is not None and all(memory.latest.get(n) == c for n, c in inputs)
+    result = _estimate_kept(grids, settings, cache, preferred_reference, previous, progress, memory, names,
+                            contents, inputs, settled)
+    if memory is not None and names:
+        result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
+                               settled)
+    result.pairs = unique_pairs(result.pairs)
+    return result
+
+
+def unique_pairs(pairs: Sequence[PairMatch]) -> List[PairMatch]:
+    """The first match listed of each two grids: tracking checks each placement against the grid it overlaps
+    most, so two grids can each be checked against the other."""
+    seen, out = set(), []
+    for p in pairs:
+        key = frozenset((p.i, p.j))
+        if key not in seen:
+            seen.add(key)
+            out.append(p)
+    return out
+
+
+def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
+                   preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
+                   progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence],
+                   contents: Optional[List[Optional[str]]], inputs: Optional[tuple], settled: bool) -> Estimate:
+    """estimate() without the confirmation of new placements; `contents`: the grids' content keys (None without
+    previous placements), `inputs`: (name, content key) pairs (None without a memory), `settled`: the maps are
+    those of the last estimation."""
     # afresh only in the estimation after the one that found the maps settled: that one re-checks every placement
     # on the final maps (tracking's verdicts), and both in one estimation would take the node's longest one (30
     # robots) past its 5 s bound; this one's tracking finds every verdict standing

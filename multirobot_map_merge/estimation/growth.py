@@ -30,7 +30,7 @@ from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import contradicted_members
 from .tracking import MAX_PASSES, least_agreeing, recheck
-from .union import UnionMap, footprint
+from .union import Box, UnionMap, footprint, overlap_area
 from .verify import overlap_found
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
@@ -150,10 +150,16 @@ class Grower:
         its check's match."""
         group = self.group(reference)
         by_grid = {c.k: c for c in checks}
+        parents = tree_of_overlaps(reference, {k: footprint(self.grids[k], t) for k, t in kept.items()})
         for k, t in kept.items():
             if k != reference:
                 group.union.add(k, self.grids[k], self.prepared[k], t)
-                group.links[k] = by_grid[k].match
+                match, j = by_grid[k].match, parents.get(k)
+                if j is not None and j != match.j:
+                    # each check names the grid it overlaps most, and two grids can name each other: the links
+                    # (the status's used pairs) name a grid nearer the reference, so that they connect every one
+                    match = dataclasses.replace(match, j=j, transform_m=tf.inverse(kept[j]) @ t)
+                group.links[k] = match
         self._settle(len(group.members) - 1)
         return group
 
@@ -453,3 +459,18 @@ class Grower:
             self.progress(min(self.settled, self.total), self.total)
 
 
+def tree_of_overlaps(root: int, footprints: Dict[int, Optional[Box]]) -> Dict[int, int]:
+    """grid -> a grid it overlaps that is one overlap nearer `root` (breadth first), for the grids reachable from
+    root through overlapping footprints."""
+    parents: Dict[int, int] = {}
+    frontier, seen = [root], {root}
+    while frontier:
+        nxt = []
+        for a in frontier:
+            for b in sorted(footprints):
+                if b not in seen and overlap_area(footprints[a], footprints[b]) > 0.0:
+                    parents[b] = a
+                    seen.add(b)
+                    nxt.append(b)
+        frontier = nxt
+    return parents

@@ -86,7 +86,7 @@ class EstimationMemory:
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
     (estimator.py); postponed_inputs: the pairs of the last estimation if its search budget left searches to a later
     one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last
-    relaxed (relax.py)."""
+    relaxed (relax.py); held, held_reference: new placements waiting for confirmation (confirmation.py)."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
@@ -96,6 +96,9 @@ class EstimationMemory:
         self.postponed_inputs: Optional[tuple] = None
         self.postponed_rounds = 0   # estimations in a row on those maps, each with twice the budget of the last
         self.relaxed: Optional[Dict[str, Grid]] = None
+        # name -> (a new placement waiting for confirmation, the map it was first held on) (confirmation.py)
+        self.held: Dict[str, Tuple[np.ndarray, Grid]] = {}
+        self.held_reference: Optional[str] = None   # the reference grid's name in the estimation that held them
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
         self._compared_lock = threading.Lock()
 

@@ -77,6 +77,7 @@ from .status import fill_transforms, frame_of, status_of
 WARN_PERIOD = 10.0      # s between two identical warnings (same robot, same kind)
 CACHE_SPARE = 4         # feature cache capacity: one entry per robot and these
 ESTIMATION_REST = 0.5   # an estimation that took b s (wall) is followed by a rest of b * this at least
+CONFIRM_S = 2.0         # s (ROS time) at most from an estimation that placed a robot for the first time to the next
 EXIT_GRACE = 0.5        # s (wall) main() waits for running cycles after shutdown before exiting without them
 
 
@@ -88,6 +89,7 @@ class MapMergeNode:
         self.params = params
         self._stop = threading.Event()
         self._kicks: Dict[str, threading.Event] = {n: threading.Event() for n in ('discovery', 'merging', 'estimation')}
+        self._estimation_pacer: Optional[LoopPacer] = None
         self._throttle = Throttle(WARN_PERIOD)
         self.own_topic = rospy.resolve_name(params.merged_map_topic)
         self._robots = Robots(params, self.own_topic, self._warn,
@@ -123,8 +125,8 @@ class MapMergeNode:
         if not self.params.known_init_poses:
             # an estimation of many maps can take longer than its period: rest half as long as it took, so that
             # it uses at most about two thirds of the node's time (the original would run it back to back)
-            loops.append(('estimation', self.estimate_once,
-                          LoopPacer(self.params.estimation_rate, self._kicks['estimation'], ESTIMATION_REST)))
+            self._estimation_pacer = LoopPacer(self.params.estimation_rate, self._kicks['estimation'], ESTIMATION_REST)
+            loops.append(('estimation', self.estimate_once, self._estimation_pacer))
         threads = [threading.Thread(target=self._loop, args=loop, name=loop[0], daemon=True) for loop in loops]
         for t in threads:
             t.start()
@@ -186,7 +188,11 @@ class MapMergeNode:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
                            'accepted' if p.accepted else 'rejected', f' ({p.reason})' if p.reason else '')
-        self._estimation_gate.estimated(inputs, complete=not result.postponed)
+        self._estimation_gate.estimated(inputs, complete=not result.postponed and not result.held)
+        if result.held and self._estimation_pacer is not None:
+            # a new placement is published once a later estimation confirms it (estimation/confirmation.py): with
+            # a slow estimation_rate (the original's launch file: 0.1 Hz) that one comes after CONFIRM_S
+            self._estimation_pacer.sooner = CONFIRM_S
         transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
         status = status_of([r.name for r in robots], grids, result, self.params.world_frame)
         with self._estimate_lock:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from typing import Optional
 
 import rospy
 
@@ -26,6 +27,7 @@ class LoopPacer:
         self.period = 1.0 / rate
         self.kick = kick
         self.rest_share = rest_share   # after a cycle that took b seconds, rest at least rest_share * b
+        self.sooner: Optional[float] = None   # a shorter period for the current cycle only (set during it)
         self._ros0 = 0.0
         self._wall0 = 0.0
 
@@ -51,7 +53,8 @@ class LoopPacer:
             elapsed = self._elapsed()
             if elapsed < 0.0:
                 break   # ROS time moved backwards (bag loop, simulator reset): start a new period now
-            remaining = max(self.period - elapsed, rest_until - time.monotonic())
+            period = min(self.period, self.sooner) if self.sooner is not None else self.period
+            remaining = max(period - elapsed, rest_until - time.monotonic())
             if remaining <= 0.0:
                 break
             if rospy.rostime.is_wallclock():
@@ -61,6 +64,7 @@ class LoopPacer:
                     if not self.kick.is_set():
                         cond.wait(SLICE)
         self.kick.clear()
+        self.sooner = None
 
     @staticmethod
     def wake(event: threading.Event) -> None:
