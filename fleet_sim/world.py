@@ -3,19 +3,21 @@
 The world grid's frame has its origin at the grid's lower-left corner (origin (0, 0, 0)); values -1 outside the
 building, 0 free, 100 wall or furniture. Layout: outer walls, a main corridor (plus a cross corridor in wide
 buildings), rooms on both sides of the corridor in one or two rows, doors of at least door_min_m, furniture blocks
-that never cut the free space (or the space a robot of robot_radius_m can use) into pieces.
+that never cut the free space (or the space the simulated move_base lets a robot of robot_radius_m use) into pieces.
 """
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import List, Tuple
+from typing import List, Optional, Tuple
 
 import cv2
 import numpy as np
 
 from multirobot_map_merge.grid import FREE, OCCUPIED, UNKNOWN, Grid
 from multirobot_map_merge.mapio import load_map
+
+from .planner import PlannerConfig
 
 _log = logging.getLogger('rosout.fleet_sim.world')
 
@@ -94,8 +96,11 @@ def free_components(data: np.ndarray, robot_radius_cells: int = 0) -> int:
 
 def make_floor_plan(seed: int, width_m: float = 24.0, height_m: float = 16.0, resolution: float = 0.05,
                     margin_m: float = 0.5, door_min_m: float = 0.9, robot_radius_m: float = 0.2,
-                    furniture_per_room: int = 2) -> Grid:
+                    furniture_per_room: int = 2, clearance_m: Optional[float] = None) -> Grid:
     """A deterministic random building of width_m x height_m (walls included), surrounded by unknown margin_m.
+
+    ``clearance_m``: the distance from walls that a robot keeps on its way to every part of the free space (no
+    furniture is placed where it would close the way); default: what the simulated move_base's planner needs.
 
     ``grid.extra`` holds 'rooms' and 'corridors' (lists of [x0, y0, x1, y1] in metres, free interior) and 'doors'
     (door centres [x, y] in metres)."""
@@ -179,8 +184,19 @@ def make_floor_plan(seed: int, width_m: float = 24.0, height_m: float = 16.0, re
                         doors.append(p.door_v(cut, ra, rb, door_w()))
     doors = [dc for dc in doors if dc[0] >= 0]
 
-    # furniture: blocks in rooms, a pillar or two in the corridor; never cut the free space into pieces
-    radius = max(1, int(round(robot_radius_m / resolution)))
+    # furniture: blocks in rooms, a pillar or two in the corridor; never cut the free space into pieces, not even
+    # for the robots' planner: it keeps robot_radius + its margin from the walls of the robot's map, on planning
+    # cells that count as close to a wall as their closest map cell. A way past furniture that only the bare radius
+    # fits through is closed to it: the room behind it stays unexplored, or the planner sends the robot on a detour
+    # through unknown space around the building. Checked at the bare radius too: a pocket too small for the
+    # planner's clearance vanishes in its erosion, not in the robot's.
+    if clearance_m is None:
+        planner = PlannerConfig(robot_radius=robot_radius_m)
+        clearance_m = planner.lethal + planner.plan_resolution / 2
+    radii = sorted({max(1, int(round(r / resolution))) for r in (robot_radius_m, clearance_m)})
+
+    def connected() -> bool:
+        return free_components(d) == 1 and all(free_components(d, r) == 1 for r in radii)
     keep_clear = p.cells(1.0)
     door_arr = np.array(doors, float).reshape(-1, 2)
     for (a, ra, b, rb) in rooms + corridors[:1]:
@@ -202,10 +218,10 @@ def make_floor_plan(seed: int, width_m: float = 24.0, height_m: float = 16.0, re
                     continue
             before = d[fr:fr + fh, fc:fc + fw].copy()
             d[fr:fr + fh, fc:fc + fw] = OCCUPIED
-            if free_components(d) != 1 or free_components(d, radius) != 1:
+            if not connected():
                 d[fr:fr + fh, fc:fc + fw] = before     # it would cut something off: leave it out
 
-    if free_components(d) != 1 or free_components(d, radius) != 1:
+    if not connected():
         raise RuntimeError(f"floor plan {seed} is not connected")   # a bug in the generator, not bad luck
 
     def metres(r: Rect) -> List[float]:

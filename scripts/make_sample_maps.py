@@ -471,7 +471,9 @@ def generated_world(spec: dict) -> Grid:
     """The world of a generated scenario: a building of fleet_sim.buildings, or fleet_sim.world's floor plan."""
     if 'building' in spec:
         return make_building(spec['building'], spec['world_seed'])
-    return make_floor_plan(spec['world_seed'], *spec['world_size_m'], resolution=RES)
+    # the furniture rule of the buildings these scenarios were made in (a robot's bare radius): their robots follow
+    # scripted paths, not the simulated move_base, and a newer rule would change the maps their figures come from
+    return make_floor_plan(spec['world_seed'], *spec['world_size_m'], resolution=RES, clearance_m=0.2)
 
 
 def world_name(spec: dict) -> str:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fleet_sim.params import FleetSimParams
+from fleet_sim.planner import PlannerConfig
 from fleet_sim.sim import FleetSim
 from fleet_sim.world import make_floor_plan
 
@@ -31,6 +32,12 @@ def test_large_floor_plan_connected(seed):
     free = g.data == 0
     assert components(free) == 1 and components(free, radius_cells=4) == 1
     assert len(g.extra['corridors']) == 2 and len(g.extra['rooms']) >= 20
+    # furniture leaves the ways the simulated move_base's planner needs (seed 2 had a room behind a 0.55 m gap
+    # between a table and the wall: its frontiers were planned round the building through unknown space and
+    # blacklisted, and one robot never explored 95 %)
+    planner = PlannerConfig(robot_radius=g.extra['robot_radius_m'])
+    clearance = planner.lethal + planner.plan_resolution / 2
+    assert components(free, radius_cells=int(round(clearance / g.resolution))) == 1
     eroded = cv2.erode(free.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9)))
     for x0, y0, x1, y1 in g.extra['rooms']:      # every room has space a robot reaches
         r0, r1, c0, c1 = [int(round(v / g.resolution)) for v in (y0, y1, x0, x1)]
