@@ -55,3 +55,25 @@ def test_a_kick_ends_the_wait_at_once(sim_clock):
     assert not done.wait(0.3)      # simulated time stands still: the period does not pass
     LoopPacer.wake(kick)
     assert done.wait(1.0)
+
+
+def test_a_sooner_period_holds_for_the_current_cycle_only(sim_clock):
+    """An estimation that held a new placement asks for the next one sooner (node CONFIRM_S): at 0.1 Hz the cycle
+    ends after 2 simulated seconds instead of 10, and the next cycle waits its full period again."""
+    def wait_until_returned(start: float) -> float:
+        done = _wait_in_thread(pacer)
+        for second in range(1, 13):
+            if done.wait(0.1):
+                return start + second - 1
+            sim_clock(start + second)
+        return float('inf')
+
+    sim_clock(50.0)
+    pacer = LoopPacer(0.1, threading.Event())
+    pacer.start_cycle()
+    pacer.sooner = 2.0
+    assert wait_until_returned(50.0) == 52.0
+    assert pacer.sooner is None
+    sim_clock(60.0)
+    pacer.start_cycle()
+    assert wait_until_returned(60.0) == 70.0
