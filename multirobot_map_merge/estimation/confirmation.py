@@ -50,10 +50,11 @@ def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Option
 
 def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], pairs: List[PairMatch],
              published: Optional[Sequence[Optional[np.ndarray]]], memory: EstimationMemory, names: Sequence,
-             grids: Sequence[Optional[Grid]], settled: bool) -> int:
+             grids: Sequence[Optional[Grid]], contents: Optional[Sequence[Optional[str]]], settled: bool) -> int:
     """Hold back (in place: transforms set to None, a reason added to `pairs`) the grids placed now that were not
     published before, unless the last estimation held them at the same place in the same frame and the map has
-    changed since it was first held, or every map is the same as in the last estimation (`settled`); how many."""
+    changed since it was first held, or every map is the same as in the last estimation (`settled`); how many.
+    `contents`: the grids' content keys when the estimation has them (features.content_key)."""
     held_before, same_frame = memory.held, reference is not None and names[reference] == memory.held_reference
     memory.held = {}
     memory.held_reference = names[reference] if reference is not None else None
@@ -62,10 +63,11 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
                                            and published[k] is not None):
             continue
         before = held_before.get(names[k]) if same_frame else None
-        first = grids[k]   # the map it was first held on, while it is held at the same place
+        now = contents[k] if contents is not None else content_key(grids[k])
+        first = now   # the content of the map it was first held on, while it is held at the same place
         if before is not None and tf.difference(t, before[0], known_corners(grids[k]))[1] <= SAME_PLACE_M:
             first = before[1]
-            if settled or content_key(first) != content_key(grids[k]):
+            if settled or first != now:
                 log.debug('grid %d: placement confirmed', k)
                 continue
         memory.held[names[k]] = (t, first)

@@ -178,7 +178,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
                             contents, inputs, settled)
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
-                               settled)
+                               contents, settled)
     result.pairs = unique_pairs(result.pairs)
     return result
 

@@ -96,8 +96,8 @@ class EstimationMemory:
         self.postponed_inputs: Optional[tuple] = None
         self.postponed_rounds = 0   # estimations in a row on those maps, each with twice the budget of the last
         self.relaxed: Optional[Dict[str, Grid]] = None
-        # name -> (a new placement waiting for confirmation, the map it was first held on) (confirmation.py)
-        self.held: Dict[str, Tuple[np.ndarray, Grid]] = {}
+        # name -> (a new placement waiting for confirmation, the content key of the map it was first held on)
+        self.held: Dict[str, Tuple[np.ndarray, str]] = {}
         self.held_reference: Optional[str] = None   # the reference grid's name in the estimation that held them
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
         self._compared_lock = threading.Lock()
