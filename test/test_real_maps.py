@@ -13,8 +13,9 @@ from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.polish import polish
 from multirobot_map_merge.estimation.refine import icp
 from multirobot_map_merge.estimation.settings import EstimationSettings
-from multirobot_map_merge.estimation.verify import (free_standing, landing_box, plausible, refusal, too_contradicted,
-                                                    verify)
+from multirobot_map_merge.estimation.verify import (free_standing, in_gap, landing_box, plausible, refusal,
+                                                    too_contradicted, verify)
+from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 
 # four robots of the CSAIL 3rd floor; maps 1 and 2 share 181 m2 (40 % of the smaller)
@@ -99,3 +100,57 @@ def test_a_long_wall_amid_free_floor_is_not_movable():
     grid = _floor()
     grid[60, 20:80] = 100                    # a 3 m partition across the room
     assert not free_standing(grid == 100, grid, 1.0 / 0.05).any()
+
+
+def _wall_with_piece(piece_cols: slice, wall_cols: slice = slice(10, 110)):
+    """A horizontal wall (rows 60-61) whose pixels in `piece_cols` contradict the other map and the rest of
+    `wall_cols` agree with it."""
+    agreeing = np.zeros((120, 120), bool)
+    agreeing[60:62, wall_cols] = True
+    conflicts = np.zeros_like(agreeing)
+    conflicts[60:62, piece_cols] = True
+    agreeing &= ~conflicts
+    return conflicts, agreeing
+
+
+def test_a_door_shut_in_a_wall_both_maps_agree_on_lies_in_a_gap():
+    conflicts, agreeing = _wall_with_piece(slice(50, 68))     # 0.9 m of the wall, agreeing wall on both sides
+    assert in_gap(conflicts, agreeing, 2.0 / 0.05).sum() == conflicts.sum()
+
+
+def test_a_piece_at_the_end_of_a_wall_or_too_long_or_across_it_is_not_in_a_gap():
+    end, agreeing = _wall_with_piece(slice(92, 110))          # the wall goes on at one end only
+    assert not in_gap(end, agreeing, 2.0 / 0.05).any()
+    long, agreeing = _wall_with_piece(slice(30, 90))          # 3 m: structure, not a door
+    assert not in_gap(long, agreeing, 2.0 / 0.05).any()
+    _, agreeing = _wall_with_piece(slice(0, 0))
+    across = np.zeros_like(agreeing)
+    across[50:72, 59:61] = True                               # a wall across the agreeing one, through it
+    assert not in_gap(across & ~agreeing, agreeing, 2.0 / 0.05).any()
+
+
+def _room_maps():
+    """Two maps of a 10 m x 5 m room with a 0.9 m door to a room beyond: map a saw it shut, map b open (and the
+    room beyond through it)."""
+    def room(shut: bool) -> np.ndarray:
+        g = np.full((160, 260), -1, np.int8)
+        g[20:122, 20:222] = 0                 # the room, its walls at rows 20-21, 120-121, cols 20-21, 220-221
+        g[20:22, 20:222] = g[120:122, 20:222] = 100
+        g[20:122, 20:22] = g[20:122, 220:222] = 100
+        if not shut:
+            g[120:122, 100:118] = 0           # the door open: the room beyond seen through it
+            g[122:150, 80:140] = 0
+        return g
+    a, b = Grid(room(shut=True), 0.05), Grid(room(shut=False), 0.05)
+    return prepare(a, 0.05, None), prepare(b, 0.05, None)
+
+
+def test_a_door_shut_in_one_pass_does_not_refuse_the_true_placement():
+    pa, pb = _room_maps()
+    s = EstimationSettings()
+    at_truth = tf.inverse(pb.px_to_map) @ pa.px_to_map
+    c = verify(pa, pb, at_truth, s)
+    assert c.deep_conflicts > s.max_deep_conflicts * c.support, (c.deep_conflicts, c.support)
+    assert refusal(c, pa, pb, s) == '', c
+    # as structure (no gaps), the same door refuses it
+    assert too_contradicted(verify(pa, pb, at_truth, s.replace(gap_size_m=0.0)), s)

@@ -40,6 +40,8 @@ class AcceptanceSettings:
     max_deep_conflicts: float = 0.01  # structural ones a pair tolerates, as a share of its agreeing walls
     movable_size_m: float = 1.0       # a deep contradiction in a free-standing piece no longer than this (a person,
                                       # a chair, a cart) moved between two passes of a real building (free_standing)
+    gap_size_m: float = 2.0           # or in a piece of wall no longer than this, in line with walls both maps agree
+                                      # on at both its ends (a door shut in one pass, glass one laser saw: in_gap)
     max_movable_conflicts: float = 0.05  # those a pair tolerates, as a share of its agreeing walls
     max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
     fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
@@ -53,7 +55,7 @@ class AcceptanceSettings:
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
         must_not_be_negative(self, 'deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m',
-                             'movable_size_m', 'max_movable_conflicts')
+                             'movable_size_m', 'gap_size_m', 'max_movable_conflicts')
         if self.confidence != self.confidence:
             raise ValueError('confidence must be a number, not NaN')
 
@@ -68,8 +70,9 @@ class Placement:
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
     deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
-    movable_conflicts: int = 0  # of those, the ones in small pieces (movable_size_m): moved objects, not structure
-                                # (counted only where it decides: see verify)
+    movable_conflicts: int = 0  # of those, the ones in things that change between passes, not structure: small
+                                # free-standing pieces, doors and glass in a wall's gap (counted only where it
+                                # decides: see verify)
     fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
     corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
 
@@ -179,11 +182,14 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         deep_i = conflicts_i & (pj.known_depth[r0:r1, c0:c1] > deep_px)
         deep_j = np.zeros_like(deep_i)
         deep_j[rows[depth_j > deep_px], cols[depth_j > deep_px]] = True
-        size_px = s.movable_size_m / pi.resolution
+        size_px, gap_px = s.movable_size_m / pi.resolution, s.gap_size_m / pi.resolution
         # the contradicting walls that are things standing free in their own map (judged on its walls in the
-        # common area: a piece of a longer wall is structure however little of it contradicts)
-        result.movable_conflicts = int((deep_i & free_standing(walls_i, wi, size_px)).sum()
-                                       + (deep_j & free_standing(walls_j, wj, size_px)).sum())
+        # common area: a piece of a longer wall is structure however little of it contradicts), or that fill a
+        # gap of the other map's wall: a door or a pane of glass
+        result.movable_conflicts = int((deep_i & (free_standing(walls_i, wi, size_px)
+                                                  | in_gap(deep_i, walls_i & near_j, gap_px))).sum()
+                                       + (deep_j & (free_standing(walls_j, wj, size_px)
+                                                    | in_gap(deep_j, walls_j & near_i, gap_px))).sum())
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
@@ -223,6 +229,61 @@ def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     return out
 
 
+GAP_REACH_PX = 3   # pixels beyond a piece's ends where the wall it belongs to must go on
+GAP_LINE_PX = 3.0  # pixels: how far from the piece's line that wall may lie (a wall is 2-4 pixels thick)
+
+
+def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.ndarray:
+    """The pixels of `conflicts` (one map's contradicting walls) that lie in short straight pieces, no longer than
+    `size_px`, whose wall goes on at both ends in `agreeing` (the same map's walls that agree with the other map),
+    in line with the piece: a gap in the other map's wall that this map saw closed.
+
+    A door shut in one pass and open in the other, or a pane of glass that one laser saw and the other saw through,
+    is such a piece: both maps agree on the wall on either side. A wrong placement puts walls where the other map
+    saw floor too, but rarely a short piece in line with agreeing walls at both its ends; where it does (a corridor
+    shifted by a door's spacing), it contradicts elsewhere as well, and such pieces count towards the share of
+    contradictions a pair tolerates in things that change (max_movable_conflicts).
+    """
+    out = np.zeros(conflicts.shape, bool)
+    rows, cols = np.nonzero(conflicts)
+    if rows.size == 0:
+        return out
+    margin = int(size_px) + GAP_REACH_PX + 2
+    r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    r1, c1 = rows.max() + margin + 1, cols.max() + margin + 1
+    conflicts, agreeing = conflicts[r0:r1, c0:c1], agreeing[r0:r1, c0:c1]
+    joined = cv2.dilate(conflicts.view(np.uint8), np.ones((3, 3), np.uint8))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    reach = np.ones((2 * GAP_REACH_PX + 1,) * 2, np.uint8)
+    h, w = conflicts.shape
+    for label in range(1, count):
+        x, y, bw, bh = (int(v) for v in stats[label, :4])
+        if math.hypot(bw - 2, bh - 2) > size_px:
+            continue
+        # the piece and the agreeing walls within reach of it, in a window around it
+        wy0, wx0 = max(y - GAP_REACH_PX, 0), max(x - GAP_REACH_PX, 0)
+        wy1, wx1 = min(y + bh + GAP_REACH_PX, h), min(x + bw + GAP_REACH_PX, w)
+        piece = (labels[wy0:wy1, wx0:wx1] == label) & conflicts[wy0:wy1, wx0:wx1]
+        around = (cv2.dilate(piece.view(np.uint8), reach) > 0) & agreeing[wy0:wy1, wx0:wx1]
+        py, px = np.nonzero(piece)
+        ay, ax = np.nonzero(around)
+        if py.size == 0 or ay.size < 2:
+            continue
+        # the line of the wall: the principal axis of the piece with the agreeing walls next to it
+        pts = np.column_stack([np.concatenate([px, ax]), np.concatenate([py, ay])]).astype(float)
+        centre = pts.mean(axis=0)
+        _, vectors = np.linalg.eigh(np.cov((pts - centre).T))
+        along, across = vectors[:, 1], vectors[:, 0]
+        p_along = (np.column_stack([px, py]) - centre) @ along
+        a_rel = np.column_stack([ax, ay]) - centre
+        in_line = np.abs(a_rel @ across) <= GAP_LINE_PX
+        a_along = a_rel[in_line] @ along
+        if np.abs((np.column_stack([px, py]) - centre) @ across).max() <= GAP_LINE_PX \
+                and (a_along < p_along.min()).any() and (a_along > p_along.max()).any():
+            out[r0 + wy0:r0 + wy1, c0 + wx0:c0 + wx1] |= piece
+    return out
+
+
 def plausible(c: Placement, s: EstimationSettings) -> bool:
     """Agrees well over a common area large enough to mean something, and (almost) everywhere well inside both
     maps' views."""
@@ -250,9 +311,9 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
     if c.support < s.min_support:
         return f'support {c.support} < {s.min_support}'
     if too_contradicted(c, s):
-        return (f'{c.deep_conflicts} contradicting walls well inside both maps ({c.movable_conflicts} in pieces of '
-                f'{s.movable_size_m:.1f} m or less), more than {s.max_deep_conflicts:.0%} (small pieces '
-                f'{s.max_movable_conflicts:.0%}) of {c.support} agreeing')
+        return (f'{c.deep_conflicts} contradicting walls well inside both maps ({c.movable_conflicts} in things that '
+                f'move: small free-standing pieces, doors, glass), more than {s.max_deep_conflicts:.0%} (things that '
+                f'move {s.max_movable_conflicts:.0%}) of {c.support} agreeing')
     c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
     if c.corner_error_m > s.max_corner_error_m:
         return (f'imprecise: the shared walls leave the far corners uncertain by '
