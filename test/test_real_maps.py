@@ -130,14 +130,16 @@ def test_a_piece_at_the_end_of_a_wall_or_too_long_or_across_it_is_not_in_a_gap()
 
 
 def _room_maps():
-    """Two maps of a 10 m x 5 m room with a 0.9 m door to a room beyond: map a saw it shut, map b open (and the
-    room beyond through it)."""
+    """Two maps of a 16 m x 5 m room with a 0.9 m door to a room beyond: map a saw it shut, map b open (and the
+    room beyond through it); map a also has a 0.6 m stub of wall into the room that map b lacks (structure)."""
     def room(shut: bool) -> np.ndarray:
-        g = np.full((160, 260), -1, np.int8)
-        g[20:122, 20:222] = 0                 # the room, its walls at rows 20-21, 120-121, cols 20-21, 220-221
-        g[20:22, 20:222] = g[120:122, 20:222] = 100
-        g[20:122, 20:22] = g[20:122, 220:222] = 100
-        if not shut:
+        g = np.full((160, 380), -1, np.int8)
+        g[20:122, 20:342] = 0                 # the room, its walls at rows 20-21, 120-121, cols 20-21, 340-341
+        g[20:22, 20:342] = g[120:122, 20:342] = 100
+        g[20:122, 20:22] = g[20:122, 340:342] = 100
+        if shut:
+            g[22:34, 200:202] = 100           # the stub, from the wall at rows 20-21
+        else:
             g[120:122, 100:118] = 0           # the door open: the room beyond seen through it
             g[122:150, 80:140] = 0
         return g
@@ -152,5 +154,7 @@ def test_a_door_shut_in_one_pass_does_not_refuse_the_true_placement():
     c = verify(pa, pb, at_truth, s)
     assert c.deep_conflicts > s.max_deep_conflicts * c.support, (c.deep_conflicts, c.support)
     assert refusal(c, pa, pb, s) == '', c
-    # as structure (no gaps), the same door refuses it
+    # as structure (no gaps), the same door refuses it; and a pair tolerates few doors (a corridor shifted by a door's
+    # spacing fills many gaps)
     assert too_contradicted(verify(pa, pb, at_truth, s.replace(gap_size_m=0.0)), s)
+    assert c.gap_conflicts > 0 and too_contradicted(c, s.replace(max_gap_conflicts=0.0))

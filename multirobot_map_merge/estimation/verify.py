@@ -40,9 +40,12 @@ class AcceptanceSettings:
     max_deep_conflicts: float = 0.01  # structural ones a pair tolerates, as a share of its agreeing walls
     movable_size_m: float = 1.0       # a deep contradiction in a free-standing piece no longer than this (a person,
                                       # a chair, a cart) moved between two passes of a real building (free_standing)
-    gap_size_m: float = 2.0           # or in a piece of wall no longer than this, in line with walls both maps agree
-                                      # on at both its ends (a door shut in one pass, glass one laser saw: in_gap)
     max_movable_conflicts: float = 0.05  # those a pair tolerates, as a share of its agreeing walls
+    gap_size_m: float = 2.0           # a deep contradiction in a piece of wall no longer than this, in line with walls
+                                      # both maps agree on at both its ends: a door shut in one pass, glass one laser
+                                      # saw (in_gap)
+    max_gap_conflicts: float = 0.01   # those a pair tolerates, as a share of its agreeing walls (a few doors; a
+                                      # corridor shifted by a door's spacing fills many gaps)
     max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
     fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
     conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts
@@ -55,7 +58,7 @@ class AcceptanceSettings:
         if not 0.0 <= self.min_agreement <= 1.0:
             raise ValueError(f'min_agreement must be in [0, 1], not {self.min_agreement}')
         must_not_be_negative(self, 'deep_conflict_m', 'max_deep_conflicts', 'fringe_px', 'max_corner_error_m',
-                             'movable_size_m', 'gap_size_m', 'max_movable_conflicts')
+                             'movable_size_m', 'max_movable_conflicts', 'gap_size_m', 'max_gap_conflicts')
         if self.confidence != self.confidence:
             raise ValueError('confidence must be a number, not NaN')
 
@@ -70,9 +73,9 @@ class Placement:
     conflicts: int = 0          # wall pixels in the common known area with no wall of the other map near them
     opposed: int = 0            # wall pixels near a wall of the other map that was seen from the other side
     deep_conflicts: int = 0     # conflicts well inside the other map's known area, not at the fringe of its view
-    movable_conflicts: int = 0  # of those, the ones in things that change between passes, not structure: small
-                                # free-standing pieces, doors and glass in a wall's gap (counted only where it
-                                # decides: see verify)
+    movable_conflicts: int = 0  # of those, the ones in small pieces (movable_size_m): moved objects, not structure
+    gap_conflicts: int = 0      # and the others in a gap of the other map's wall (gap_size_m): a door, glass
+                                # (both counted only where it decides: see verify)
     fringe_conflicts: int = 0   # conflicts at the fringe of the other map's view (the ends of its beams)
     corner_error_m: float = 0.0  # expected error at the far corners of either map (precision.py); best only
 
@@ -176,8 +179,8 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         rows, cols, depth_j = rows[inside], cols[inside], pi.known_depth[y[inside], x[inside]]
     depth = np.concatenate([depth_i, depth_j])
     result.deep_conflicts = int((depth > deep_px).sum())
-    if s.max_deep_conflicts * support < result.deep_conflicts <= (s.max_deep_conflicts + s.max_movable_conflicts) \
-            * support:
+    if s.max_deep_conflicts * support < result.deep_conflicts \
+            <= (s.max_deep_conflicts + s.max_movable_conflicts + s.max_gap_conflicts) * support:
         # told apart only where it decides: below, the placement passes either way; above, it fails either way
         deep_i = conflicts_i & (pj.known_depth[r0:r1, c0:c1] > deep_px)
         deep_j = np.zeros_like(deep_i)
@@ -186,10 +189,11 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         # the contradicting walls that are things standing free in their own map (judged on its walls in the
         # common area: a piece of a longer wall is structure however little of it contradicts), or that fill a
         # gap of the other map's wall: a door or a pane of glass
-        result.movable_conflicts = int((deep_i & (free_standing(walls_i, wi, size_px)
-                                                  | in_gap(deep_i, walls_i & near_j, gap_px))).sum()
-                                       + (deep_j & (free_standing(walls_j, wj, size_px)
-                                                    | in_gap(deep_j, walls_j & near_i, gap_px))).sum())
+        movable_i = deep_i & free_standing(walls_i, wi, size_px)
+        movable_j = deep_j & free_standing(walls_j, wj, size_px)
+        result.movable_conflicts = int(movable_i.sum() + movable_j.sum())
+        result.gap_conflicts = int((in_gap(deep_i, walls_i & near_j, gap_px) & ~movable_i).sum()
+                                   + (in_gap(deep_j, walls_j & near_i, gap_px) & ~movable_j).sum())
     result.fringe_conflicts = result.conflicts - int((depth > s.fringe_px).sum())
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
@@ -241,8 +245,7 @@ def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.nd
     A door shut in one pass and open in the other, or a pane of glass that one laser saw and the other saw through,
     is such a piece: both maps agree on the wall on either side. A wrong placement puts walls where the other map
     saw floor too, but rarely a short piece in line with agreeing walls at both its ends; where it does (a corridor
-    shifted by a door's spacing), it contradicts elsewhere as well, and such pieces count towards the share of
-    contradictions a pair tolerates in things that change (max_movable_conflicts).
+    shifted by a door's spacing), it fills many gaps: a pair tolerates few such pieces (max_gap_conflicts).
     """
     out = np.zeros(conflicts.shape, bool)
     rows, cols = np.nonzero(conflicts)
@@ -295,9 +298,10 @@ def too_contradicted(c: Placement, s: EstimationSettings) -> bool:
     """Whether the walls that contradict well inside both maps' views say the placement is wrong: more structure
     (long pieces of wall) than max_deep_conflicts of the agreeing walls, or more small movable pieces than
     max_movable_conflicts (a little clutter moved between passes; a building full of it is no evidence)."""
-    structural = c.deep_conflicts - c.movable_conflicts
+    structural = c.deep_conflicts - c.movable_conflicts - c.gap_conflicts
     return (structural > s.max_deep_conflicts * c.support
-            or c.movable_conflicts > s.max_movable_conflicts * c.support)
+            or c.movable_conflicts > s.max_movable_conflicts * c.support
+            or c.gap_conflicts > s.max_gap_conflicts * c.support)
 
 
 def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings, onto_union: bool = False) -> str:
@@ -311,9 +315,10 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
     if c.support < s.min_support:
         return f'support {c.support} < {s.min_support}'
     if too_contradicted(c, s):
-        return (f'{c.deep_conflicts} contradicting walls well inside both maps ({c.movable_conflicts} in things that '
-                f'move: small free-standing pieces, doors, glass), more than {s.max_deep_conflicts:.0%} (things that '
-                f'move {s.max_movable_conflicts:.0%}) of {c.support} agreeing')
+        return (f'{c.deep_conflicts} contradicting walls well inside both maps ({c.movable_conflicts} in pieces of '
+                f'{s.movable_size_m:.1f} m or less, {c.gap_conflicts} in gaps of a wall), more than '
+                f'{s.max_deep_conflicts:.0%} (small pieces {s.max_movable_conflicts:.0%}, gaps '
+                f'{s.max_gap_conflicts:.0%}) of {c.support} agreeing')
     c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
     if c.corner_error_m > s.max_corner_error_m:
         return (f'imprecise: the shared walls leave the far corners uncertain by '
@@ -344,7 +349,8 @@ def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: boo
     and agrees mostly (a broken map fits the union in part). Then a search would find the same placement."""
     if c is None:
         return False
-    return (plausible(c, s.replace(max_deep_conflicts=math.inf, max_movable_conflicts=math.inf))
+    return (plausible(c, s.replace(max_deep_conflicts=math.inf, max_movable_conflicts=math.inf,
+                                 max_gap_conflicts=math.inf))
             or (onto_union and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2
                 and c.agreement >= FOUND_AGREEMENT))
 
