@@ -17,6 +17,8 @@ from multirobot_map_merge.estimation.verify import (free_standing, in_gap, landi
                                                     too_contradicted, verify)
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.pipeline import MergingPipeline
+from multirobot_map_merge.ros.params import MapMergeParams
 
 # four robots of the CSAIL 3rd floor; maps 1 and 2 share 181 m2 (40 % of the smaller)
 SCENARIO = 'group4_real_csail_clean'
@@ -158,3 +160,25 @@ def test_a_door_shut_in_one_pass_does_not_refuse_the_true_placement():
     # spacing fills many gaps)
     assert too_contradicted(verify(pa, pb, at_truth, s.replace(gap_size_m=0.0)), s)
     assert c.gap_conflicts > 0 and too_contradicted(c, s.replace(max_gap_conflicts=0.0))
+
+
+def test_the_final_checks_of_a_realistic_run_keep_every_robot(repo_root):
+    """The final maps of a live demo with realistic robots (`--robots 6 --realistic --seed 1`), estimated as the node
+    does once they stop changing: the placements are confirmed, checked again on the final maps, compared with an
+    estimate afresh. Robot_6 saw a door open and a pane of glass that the others saw as wall: counted as structure,
+    those contradictions dropped it in the check on the final maps."""
+    folder = repo_root / 'test' / 'data' / 'demo_realistic_doors'
+    names = [f'robot_{n}' for n in range(1, 7)]
+    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
+
+    def placed_after_final_checks(settings: EstimationSettings) -> set:
+        pipeline = MergingPipeline(settings)
+        pipeline.feed(grids)
+        for _ in range(5):
+            result = pipeline.estimate(previous=pipeline.transforms if pipeline.reference is not None else None,
+                                       names=names)
+        return {names[k] for k, t in enumerate(result.transforms) if t is not None}
+
+    settings = MapMergeParams().estimation_settings()
+    assert placed_after_final_checks(settings) == set(names)
+    assert 'robot_6' not in placed_after_final_checks(settings.replace(gap_size_m=0.0))
