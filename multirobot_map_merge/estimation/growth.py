@@ -379,7 +379,16 @@ class Grower:
                     for k in joined:
                         other.leave(k)
             unplaced[:] = [k for k in unplaced if k not in group.members]
+            # the grids alone were just matched onto the merge: they join the groups as these grow (merge_groups
+            # grows each merged group with them), not each matched onto every other group with a search (a
+            # generated hospital: 5 grids matched so onto one side group after each grid it took, 4 s)
+            alone = [g for g in groups if g is not group and len(g.members) == 1]
+            groups[:] = [g for g in groups if g not in alone]
+            unplaced.extend(g.seed for g in alone)
             self.merge_groups(groups, unplaced)
+            placed = {k for g in groups for k in g.members}
+            groups.extend(g for g in alone if g.seed not in placed)
+            unplaced[:] = [k for k in unplaced if k not in placed]
             group = max(groups, key=lambda g: (len(g.members), self.reference in g.members))
         return evicted
 
