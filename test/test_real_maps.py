@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.estimation import tracking
 from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.polish import polish
 from multirobot_map_merge.estimation.refine import icp
@@ -131,9 +132,9 @@ def test_a_piece_at_the_end_of_a_wall_or_too_long_or_across_it_is_not_in_a_gap()
     assert not in_gap(across & ~agreeing, agreeing, 2.0 / 0.05).any()
 
 
-def _room_maps():
-    """Two maps of a 16 m x 5 m room with a 0.9 m door to a room beyond: map a saw it shut, map b open (and the
-    room beyond through it); map a also has a 0.6 m stub of wall into the room that map b lacks (structure)."""
+def _room_grids(doors: int = 1):
+    """Two maps of a 16 m x 5 m room with 0.9 m doors to a room beyond: map a saw them shut, map b open (and the
+    room beyond through them); map a also has a 0.6 m stub of wall into the room that map b lacks (structure)."""
     def room(shut: bool) -> np.ndarray:
         g = np.full((160, 380), -1, np.int8)
         g[20:122, 20:342] = 0                 # the room, its walls at rows 20-21, 120-121, cols 20-21, 340-341
@@ -142,15 +143,15 @@ def _room_maps():
         if shut:
             g[22:34, 200:202] = 100           # the stub, from the wall at rows 20-21
         else:
-            g[120:122, 100:118] = 0           # the door open: the room beyond seen through it
-            g[122:150, 80:140] = 0
+            for n in range(doors):            # the doors open: the room beyond seen through them
+                g[120:122, 100 + 80 * n:118 + 80 * n] = 0
+                g[122:150, 80 + 80 * n:140 + 80 * n] = 0
         return g
-    a, b = Grid(room(shut=True), 0.05), Grid(room(shut=False), 0.05)
-    return prepare(a, 0.05, None), prepare(b, 0.05, None)
+    return Grid(room(shut=True), 0.05), Grid(room(shut=False), 0.05)
 
 
 def test_a_door_shut_in_one_pass_does_not_refuse_the_true_placement():
-    pa, pb = _room_maps()
+    pa, pb = (prepare(g, 0.05, None) for g in _room_grids())
     s = EstimationSettings()
     at_truth = tf.inverse(pb.px_to_map) @ pa.px_to_map
     c = verify(pa, pb, at_truth, s)
@@ -182,3 +183,25 @@ def test_the_final_checks_of_a_realistic_run_keep_every_robot(repo_root):
     settings = MapMergeParams().estimation_settings()
     assert placed_after_final_checks(settings) == set(names)
     assert 'robot_6' not in placed_after_final_checks(settings.replace(gap_size_m=0.0))
+
+
+def test_a_kept_placement_tolerates_more_doors_than_a_new_match(monkeypatch):
+    """Two doors shut in one map, open in the other: too many gap pieces for a new match (1 % of the agreeing walls),
+    not for a placement kept from the last estimation (tracking.KEPT_GAP_FACTOR): doors open and shut while the
+    maps grow."""
+    a, b = _room_grids(doors=2)
+    pa, pb = prepare(a, 0.05, None), prepare(b, 0.05, None)
+    s = EstimationSettings()
+    c = verify(pa, pb, tf.inverse(pb.px_to_map) @ pa.px_to_map, s)
+    assert s.max_gap_conflicts * c.support < c.gap_conflicts <= 2 * s.max_gap_conflicts * c.support, c
+    assert refusal(c, pa, pb, s) != ''
+
+    def kept(names=('a', 'b')) -> bool:
+        pipeline = MergingPipeline(s)
+        pipeline.feed([a, b])
+        result = pipeline.estimate(preferred_reference=1, previous=[np.eye(3), np.eye(3)], names=list(names))
+        return result.transforms[0] is not None
+
+    assert kept()
+    monkeypatch.setattr(tracking, 'KEPT_GAP_FACTOR', 1.0)
+    assert not kept()
