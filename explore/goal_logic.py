@@ -27,6 +27,9 @@ ABORTED = 4
 BLACKLIST_TOLERANCE_CELLS = 5
 # The original's "same goal" test: xy distance below 1 cm.
 SAME_GOAL_DISTANCE = 0.01
+# How long a robot that has reached its goal waits there for the frontier to go (the map catching up with what it
+# sees) before blacklisting the goal, instead of standing still for the whole progress_timeout.
+REACHED_PATIENCE = 3.0
 
 
 def same_point(a: Sequence[float], b: Sequence[float]) -> bool:
@@ -84,6 +87,10 @@ class GoalLogic:
         self._areas: List[_AreaProgress] = []
         self._prev_area: Optional[_AreaProgress] = None
         self._resuming = False
+        # The goal most recently reached (SUCCEEDED) and when a plan first chose it again afterwards: the robot
+        # stands at it, so getting no nearer is no sign that it is on its way.
+        self._reached: Optional[Point2] = None
+        self._reached_kept_since = math.inf
         self._initial_pose: Any = None
         self._returned = False
 
@@ -164,9 +171,15 @@ class GoalLogic:
                     self._areas, self._prev_area = [], None
                     blacklisted.append(target)
                     continue
+                if self._stood_at(target, now, resolution) and not self._resuming:
+                    self.add_to_blacklist(target)
+                    blacklisted.append(target)
+                    continue
                 self._resuming = False
                 if same_goal:
                     return PlanResult(PlanAction.KEEP_GOAL, target, frontier, blacklisted=blacklisted)
+                if self._reached is not None and not on_blacklist(target, [self._reached], resolution):
+                    self._reached, self._reached_kept_since = None, math.inf
                 self._returned = False
                 return PlanResult(PlanAction.SEND_GOAL, target, frontier, blacklisted=blacklisted)
 
@@ -195,6 +208,14 @@ class GoalLogic:
         self._prev_area = area
         return area
 
+    def _stood_at(self, target: Point2, now: float, resolution: float) -> bool:
+        """True once plans have kept choosing the area of the reached goal for REACHED_PATIENCE s: its frontier did
+        not go when the robot got there, and standing there longer will not make it go."""
+        if self._reached is None or not on_blacklist(target, [self._reached], resolution):
+            return False
+        self._reached_kept_since = min(self._reached_kept_since, now)
+        return now - self._reached_kept_since >= REACHED_PATIENCE
+
     def _stop(self, reason: str, blacklisted: List[Point2]) -> PlanResult:
         self._resuming = False
         ret = None
@@ -210,6 +231,11 @@ class GoalLogic:
         _log.debug("Reached goal with status: %s", status)
         if status == ABORTED and target is not None:
             self.add_to_blacklist(target)
+        with self._lock:
+            # only the current goal: a preempted goal's callback comes after its successor was sent
+            if status == SUCCEEDED and target is not None and self._prev_goal is not None \
+                    and same_point(target, self._prev_goal):
+                self._reached, self._reached_kept_since = (float(target[0]), float(target[1])), math.inf
         return True
 
 

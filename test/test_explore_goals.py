@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from explore.frontier_search import Frontier
-from explore.goal_logic import (ABORTED, PREEMPTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty,
-                                on_blacklist, same_point)
+from explore.goal_logic import (ABORTED, PREEMPTED, REACHED_PATIENCE, SUCCEEDED, GoalLogic, PlanAction,
+                                apply_team_penalty, on_blacklist, same_point)
 from explore.params import ExploreParams, ParamError, describe
 
 RES = 0.5  # binary-exact, so the ±5-cell blacklist edges can be tested exactly
@@ -88,6 +88,31 @@ def test_same_goal_is_not_resent_until_timeout_then_blacklisted():
     res = logic.plan([jiggled, other], RES, t0 + timeout + 0.5)
     assert res.action is PlanAction.SEND_GOAL and res.frontier is other
     assert res.blacklisted == [jiggled.centroid] and logic.is_blacklisted(stuck.centroid, RES)
+
+
+def test_a_reached_goal_whose_frontier_stays_is_blacklisted_after_a_short_wait():
+    """move_base SUCCEEDED but the frontier is still there (the laser cannot clear it from the goal): the robot
+    stands still, so it waits REACHED_PATIENCE s, not the whole progress_timeout, before moving on."""
+    logic = GoalLogic(progress_timeout=30.0)
+    stays, other = frontier(2.0, 2.0, -5.0, min_distance=0.5), frontier(8.0, 8.0, -1.0)
+    assert logic.plan([stays, other], RES, 0.0).action is PlanAction.SEND_GOAL
+    logic.on_goal_done(SUCCEEDED, stays.centroid)
+    assert logic.plan([stays, other], RES, 10.0).action is PlanAction.KEEP_GOAL       # the map may catch up
+    assert logic.plan([stays, other], RES, 10.0 + REACHED_PATIENCE - 0.5).action is PlanAction.KEEP_GOAL
+    res = logic.plan([stays, other], RES, 10.0 + REACHED_PATIENCE)
+    assert res.action is PlanAction.SEND_GOAL and res.frontier is other and res.blacklisted == [stays.centroid]
+
+
+def test_a_preempted_goals_success_does_not_cut_the_wait_of_its_successor():
+    """A done callback for a goal other than the current one (it comes after its successor was sent) leaves the
+    current goal on the progress timeout."""
+    logic = GoalLogic(progress_timeout=30.0)
+    old, new = frontier(9.0, 9.0, -1.0), frontier(2.0, 2.0, -5.0, min_distance=3.0)
+    logic.plan([old], RES, 0.0)
+    logic.plan([new, old], RES, 1.0)
+    logic.on_goal_done(SUCCEEDED, old.centroid)
+    assert logic.plan([new, old], RES, 2.0).action is PlanAction.KEEP_GOAL
+    assert logic.plan([new, old], RES, 20.0).action is PlanAction.KEEP_GOAL          # still within 30 s
 
 
 def test_progress_towards_the_goal_resets_the_timeout():
