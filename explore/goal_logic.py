@@ -255,9 +255,14 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
       which of them a frontier is left to (comparing a teammate's goal with one's own position, both could leave
       it to the other).
 
-    Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
-    penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
-    frontiers after all unpenalised ones (also for inf/NaN costs). A robot therefore goes where a teammate is
+    A frontier's rank (as MinPos, Bautin et al. 2012) is the number of teammates it is left to, plus one if it lies
+    within ``team_radius`` of a teammate's goal (that teammate is heading for it right now, not merely nearer).
+    Frontiers keep their cost order within rank 0; ranked ones follow by rank and, within a rank, by this robot's
+    distance: when every frontier is someone else's, the robot takes the nearest of those fewest teammates want,
+    instead of the one of best cost, which is usually the large frontier a teammate is already driving to.
+
+    Formula: a frontier of rank ``k`` gets ``cost + k·P`` with ``P = (max − min of the finite costs) + 1``; the
+    result is sorted (stable) by rank, NaN costs last within a rank. A robot therefore goes where a teammate is
     heading only when every other frontier is gone or blacklisted. No team goals: the input order, unchanged.
     ``team_goals`` must be in the frontiers' frame and exclude this robot's own goal.
     """
@@ -269,9 +274,10 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     keyed = []
     for f in frontiers:
         own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
-        near = any(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
-        g = replace(f, cost=f.cost + penalty) if near else f
-        keyed.append(((near, math.isnan(g.cost), g.cost), g))
+        rank = sum(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
+        rank += any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < team_radius for g in team_goals)
+        g = replace(f, cost=f.cost + rank * penalty) if rank else f
+        keyed.append(((rank, math.isnan(g.cost), f.min_distance if rank else g.cost), g))
     keyed.sort(key=lambda kv: kv[0])
     return [g for _, g in keyed]
 
