@@ -37,8 +37,8 @@ from explore.coverage import KnownRaster, reachable_mask  # noqa: E402
 from explore.frontier_search import FrontierSearch  # noqa: E402
 from explore.goal_logic import ABORTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty  # noqa: E402
 from explore.params import ExploreParams  # noqa: E402
-from explore.team import (TeamGoals, costmap_known_at, drop_explored_by_team, drop_own_duplicates,  # noqa: E402
-                          mask_known_at, rank_with_team, team_frontiers)
+from explore.team import (TeamGoals, costmap_known_at, drop_explored_by_team, mask_known_at,  # noqa: E402
+                          rank_with_team, team_frontiers)
 from fleet_sim.mapping import compose, relative_pose  # noqa: E402
 from multirobot_map_merge import transforms as tf  # noqa: E402
 from multirobot_map_merge.grid import Grid  # noqa: E402
@@ -132,7 +132,6 @@ def run(n_robots: int, coordinated: bool, seed: int, world_seed: int, limit: flo
                                        params.potential_scale, params.gain_scale, params.min_frontier_size,
                                        params.path_distance,
                                        costmap_known_at(ex.cm.data, ex.cm.resolution, (ex.cm.origin_x, ex.cm.origin_y)))
-                extra = drop_own_duplicates(extra, frontiers, ex.cm.resolution)
             for j, other in enumerate(explorers):
                 if j != i and j in merged_with[i]:
                     ex.team.update(other.name, world_goal(j), other.chosen_at, sim.t, other.goal_distance)

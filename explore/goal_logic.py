@@ -27,9 +27,6 @@ ABORTED = 4
 BLACKLIST_TOLERANCE_CELLS = 5
 # The original's "same goal" test: xy distance below 1 cm.
 SAME_GOAL_DISTANCE = 0.01
-# How long a robot that has reached its goal waits there for the frontier to go (the map catching up with what it
-# sees) before blacklisting the goal, instead of standing still for the whole progress_timeout.
-REACHED_PATIENCE = 3.0
 
 
 def same_point(a: Sequence[float], b: Sequence[float]) -> bool:
@@ -87,10 +84,6 @@ class GoalLogic:
         self._areas: List[_AreaProgress] = []
         self._prev_area: Optional[_AreaProgress] = None
         self._resuming = False
-        # The goal most recently reached (SUCCEEDED) and when a plan first chose it again afterwards: the robot
-        # stands at it, so getting no nearer is no sign that it is on its way.
-        self._reached: Optional[Point2] = None
-        self._reached_kept_since = math.inf
         self._initial_pose: Any = None
         self._returned = False
 
@@ -171,15 +164,9 @@ class GoalLogic:
                     self._areas, self._prev_area = [], None
                     blacklisted.append(target)
                     continue
-                if self._stood_at(target, now, resolution) and not self._resuming:
-                    self.add_to_blacklist(target)
-                    blacklisted.append(target)
-                    continue
                 self._resuming = False
                 if same_goal:
                     return PlanResult(PlanAction.KEEP_GOAL, target, frontier, blacklisted=blacklisted)
-                if self._reached is not None and not on_blacklist(target, [self._reached], resolution):
-                    self._reached, self._reached_kept_since = None, math.inf
                 self._returned = False
                 return PlanResult(PlanAction.SEND_GOAL, target, frontier, blacklisted=blacklisted)
 
@@ -208,14 +195,6 @@ class GoalLogic:
         self._prev_area = area
         return area
 
-    def _stood_at(self, target: Point2, now: float, resolution: float) -> bool:
-        """True once plans have kept choosing the area of the reached goal for REACHED_PATIENCE s: its frontier did
-        not go when the robot got there, and standing there longer will not make it go."""
-        if self._reached is None or not on_blacklist(target, [self._reached], resolution):
-            return False
-        self._reached_kept_since = min(self._reached_kept_since, now)
-        return now - self._reached_kept_since >= REACHED_PATIENCE
-
     def _stop(self, reason: str, blacklisted: List[Point2]) -> PlanResult:
         self._resuming = False
         ret = None
@@ -231,11 +210,6 @@ class GoalLogic:
         _log.debug("Reached goal with status: %s", status)
         if status == ABORTED and target is not None:
             self.add_to_blacklist(target)
-        with self._lock:
-            # only the current goal: a preempted goal's callback comes after its successor was sent
-            if status == SUCCEEDED and target is not None and self._prev_goal is not None \
-                    and same_point(target, self._prev_goal):
-                self._reached, self._reached_kept_since = (float(target[0]), float(target[1])), math.inf
         return True
 
 
@@ -255,14 +229,9 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
       which of them a frontier is left to (comparing a teammate's goal with one's own position, both could leave
       it to the other).
 
-    A frontier's rank (as MinPos, Bautin et al. 2012) is the number of teammates it is left to, plus one if it lies
-    within ``team_radius`` of a teammate's goal (that teammate is heading for it right now, not merely nearer).
-    Frontiers keep their cost order within rank 0; ranked ones follow by rank and, within a rank, by this robot's
-    distance: when every frontier is someone else's, the robot takes the nearest of those fewest teammates want,
-    instead of the one of best cost, which is usually the large frontier a teammate is already driving to.
-
-    Formula: a frontier of rank ``k`` gets ``cost + k·P`` with ``P = (max − min of the finite costs) + 1``; the
-    result is sorted (stable) by rank, NaN costs last within a rank. A robot therefore goes where a teammate is
+    Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
+    penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
+    frontiers after all unpenalised ones (also for inf/NaN costs). A robot therefore goes where a teammate is
     heading only when every other frontier is gone or blacklisted. No team goals: the input order, unchanged.
     ``team_goals`` must be in the frontiers' frame and exclude this robot's own goal.
     """
@@ -274,10 +243,9 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     keyed = []
     for f in frontiers:
         own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
-        rank = sum(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
-        rank += any(math.hypot(f.centroid[0] - g[0], f.centroid[1] - g[1]) < team_radius for g in team_goals)
-        g = replace(f, cost=f.cost + rank * penalty) if rank else f
-        keyed.append(((rank, math.isnan(g.cost), f.min_distance if rank else g.cost), g))
+        near = any(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
+        g = replace(f, cost=f.cost + penalty) if near else f
+        keyed.append(((near, math.isnan(g.cost), g.cost), g))
     keyed.sort(key=lambda kv: kv[0])
     return [g for _, g in keyed]
 

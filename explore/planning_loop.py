@@ -22,7 +22,7 @@ from .goal_logic import GoalLogic, PlanAction, apply_team_penalty
 from .markers import frontier_markers
 from .nav_client import NavClient, pose_goal, status_name
 from .params import ExploreParams
-from .team import costmap_known_at, drop_explored_by_team, drop_own_duplicates, rank_with_team
+from .team import costmap_known_at, drop_explored_by_team, rank_with_team
 from .team_link import TeamLink
 
 Pose2 = Tuple[float, float, Tuple[float, float, float, float]]   # x, y, quaternion (x, y, z, w)
@@ -148,7 +148,6 @@ class PlanningLoop:
             own_known = (costmap_known_at(cm.data.copy(), resolution, (cm.origin_x, cm.origin_y))
                          if team_known is not None else None)
         extra: List[Frontier] = [] if own_known is None else self.team.frontiers(frame, pose[:2], cm.table, own_known)
-        extra = drop_own_duplicates(extra, frontiers, resolution)   # the own frontiers seen again in the team map
         now = rospy.get_time()
         if self._marker_pub is not None and frontiers:
             self._publish_markers(frontiers, frame, resolution)   # the own map's, as the original

@@ -214,26 +214,6 @@ def team_frontiers(grid: Grid, table: np.ndarray, robot_in_team: Point2, own_fro
     return out
 
 
-def drop_own_duplicates(team: Sequence[Frontier], own: Sequence[Frontier], resolution: float,
-                        max_shared: float = KNOWN_BY_TEAM) -> List[Frontier]:
-    """The team map's frontiers (order kept) that are not one of the robot's own frontiers seen again: a team
-    frontier is the same as an own one when more than ``max_shared`` of its cells lie on (or next to) own frontier
-    cells. The two copies differ in centroid (the own one has the original's quirk, often a metre off) and cost, so
-    ranked together the robot's goal flips between them at every plan and the robot drives back and forth."""
-    if not team or not own or resolution <= 0.0:
-        return list(team)
-    own_cells = np.floor(np.concatenate([f.points for f in own]) / resolution).astype(np.int64)
-    near = np.concatenate([own_cells + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
-    on_own = set(map(tuple, near))
-    out = []
-    for f in team:
-        cells = np.floor(f.points / resolution).astype(np.int64)
-        shared = sum(1 for c in map(tuple, cells) if c in on_own)
-        if not len(cells) or shared / len(cells) <= max_shared:
-            out.append(f)
-    return out
-
-
 def rank_with_team(own: Sequence[Frontier], team: Sequence[Frontier]) -> List[Frontier]:
     """The robot's own frontiers and the team map's (``team_frontiers``, same frame) in one cost order; stable, so
     on equal costs its own come first, and NaN costs last."""

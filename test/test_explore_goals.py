@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from explore.frontier_search import Frontier
-from explore.goal_logic import (ABORTED, PREEMPTED, REACHED_PATIENCE, SUCCEEDED, GoalLogic, PlanAction,
-                                apply_team_penalty, on_blacklist, same_point)
+from explore.goal_logic import (ABORTED, PREEMPTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty,
+                                on_blacklist, same_point)
 from explore.params import ExploreParams, ParamError, describe
 
 RES = 0.5  # binary-exact, so the ±5-cell blacklist edges can be tested exactly
@@ -90,31 +90,6 @@ def test_same_goal_is_not_resent_until_timeout_then_blacklisted():
     assert res.blacklisted == [jiggled.centroid] and logic.is_blacklisted(stuck.centroid, RES)
 
 
-def test_a_reached_goal_whose_frontier_stays_is_blacklisted_after_a_short_wait():
-    """move_base SUCCEEDED but the frontier is still there (the laser cannot clear it from the goal): the robot
-    stands still, so it waits REACHED_PATIENCE s, not the whole progress_timeout, before moving on."""
-    logic = GoalLogic(progress_timeout=30.0)
-    stays, other = frontier(2.0, 2.0, -5.0, min_distance=0.5), frontier(8.0, 8.0, -1.0)
-    assert logic.plan([stays, other], RES, 0.0).action is PlanAction.SEND_GOAL
-    logic.on_goal_done(SUCCEEDED, stays.centroid)
-    assert logic.plan([stays, other], RES, 10.0).action is PlanAction.KEEP_GOAL       # the map may catch up
-    assert logic.plan([stays, other], RES, 10.0 + REACHED_PATIENCE - 0.5).action is PlanAction.KEEP_GOAL
-    res = logic.plan([stays, other], RES, 10.0 + REACHED_PATIENCE)
-    assert res.action is PlanAction.SEND_GOAL and res.frontier is other and res.blacklisted == [stays.centroid]
-
-
-def test_a_preempted_goals_success_does_not_cut_the_wait_of_its_successor():
-    """A done callback for a goal other than the current one (it comes after its successor was sent) leaves the
-    current goal on the progress timeout."""
-    logic = GoalLogic(progress_timeout=30.0)
-    old, new = frontier(9.0, 9.0, -1.0), frontier(2.0, 2.0, -5.0, min_distance=3.0)
-    logic.plan([old], RES, 0.0)
-    logic.plan([new, old], RES, 1.0)
-    logic.on_goal_done(SUCCEEDED, old.centroid)
-    assert logic.plan([new, old], RES, 2.0).action is PlanAction.KEEP_GOAL
-    assert logic.plan([new, old], RES, 20.0).action is PlanAction.KEEP_GOAL          # still within 30 s
-
-
 def test_progress_towards_the_goal_resets_the_timeout():
     logic = GoalLogic(progress_timeout=30.0)
     t = 0.0
@@ -179,13 +154,11 @@ def test_team_penalty_demotes_frontiers_near_team_goals():
     fs = [frontier(0.0, 0.0, -10.0), frontier(10.0, 0.0, -5.0), frontier(0.5, 0.5, -4.0), frontier(20.0, 0.0, 2.0)]
     out = apply_team_penalty(fs, [(0.0, 1.0)], team_radius=3.0)
     near = {id(fs[0]), id(fs[2])}
-    # unpenalised frontiers keep their order and come first; penalised ones follow (same rank, same distance: in
-    # their own cost order)
+    # unpenalised frontiers keep their order and come first; penalised ones follow, in their own cost order
     assert [f.centroid for f in out] == [(10.0, 0.0), (20.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
     assert out[0] is fs[1] and out[1] is fs[3] and not near & {id(f) for f in out}
     span = max(f.cost for f in fs) - min(f.cost for f in fs)
-    # rank 2: left to the teammate (within team_radius of its goal) and that goal is right there
-    assert out[2].cost == pytest.approx(fs[0].cost + 2 * (span + 1.0)) and out[2].cost > max(f.cost for f in out[:2])
+    assert out[2].cost == pytest.approx(fs[0].cost + span + 1.0) and out[2].cost > max(f.cost for f in out[:2])
     assert fs[0].cost == -10.0  # inputs are not modified
 
 
@@ -234,25 +207,6 @@ def test_frontier_a_teammate_reaches_first_is_left_to_it_whatever_this_robot_cho
     # an unknown distance (inf) falls back to the goal-to-goal rule; team_radius holds in any case
     assert apply_team_penalty([far, near], teammate, 0.5, heading, [math.inf])[0] is far
     assert apply_team_penalty([far, near], teammate, 3.0, heading, [60.0])[0] is near
-
-
-def test_when_every_frontier_is_a_teammates_the_nearest_of_the_fewest_wanted_comes_first():
-    """MinPos order of the demoted frontiers: by how many teammates they are left to (a teammate's goal counting
-    once more), then by this robot's distance, not by cost: the large frontier a teammate is driving to is the
-    best by cost, and chasing it is what the robot must not do."""
-    robot = (0.0, 0.0)
-    at_goal = frontier(30.0, 0.0, -20.0, min_distance=30.0, size=300)   # teammate A drives there (2 m left)
-    nearer_to_a = frontier(24.0, 6.0, -2.0, min_distance=26.0)           # A gets there first too, not its goal
-    near = frontier(0.0, 18.0, -1.0, min_distance=18.0)                  # B (6 m from it) gets there first
-    far = frontier(0.0, 25.0, -3.0, min_distance=25.0)                   # B too
-    both = frontier(5.0, 12.0, -4.0, min_distance=29.0)                  # A and B would both be there first
-    goals, remaining = [(29.0, 0.0), (0.0, 12.0)], [2.0, 6.0]
-    out = apply_team_penalty([at_goal, nearer_to_a, near, far, both], goals, 3.0, robot, remaining)
-    assert [f.centroid for f in out] == [f.centroid for f in (near, far, nearer_to_a, both, at_goal)]
-    assert [f.cost for f in out] == [-1.0 + 20, -3.0 + 20, -2.0 + 20, -4.0 + 40, -20.0 + 40]   # P = 20 per rank
-    # one frontier nobody else gets first: it leads, whatever its cost
-    mine = frontier(-6.0, 0.0, 5.0, min_distance=6.0)
-    assert apply_team_penalty([at_goal, near, mine], goals, 3.0, robot, remaining)[0] is mine
 
 
 def test_penalised_frontier_chosen_when_others_blacklisted():

@@ -169,25 +169,6 @@ def _frontier(x, cost, size=10, min_distance=1.0):
                     middle=(x, 0.0), points=np.zeros((size - 1, 2)))
 
 
-def test_a_team_frontier_that_is_an_own_frontier_seen_again_is_dropped():
-    """The merged map shows the robot's own frontiers too, with another centroid and cost: ranked together with
-    the own copy, the goal flips between the two at every plan. Only team frontiers mostly on other cells stay."""
-    from explore.team import drop_own_duplicates
-    res = 0.05
-
-    def line(x0, n, y=1.0):
-        pts = np.column_stack([x0 + (np.arange(n) + 0.5) * res, np.full(n, y)])
-        return Frontier(size=n + 1, min_distance=1.0, cost=-1.0, initial=tuple(pts[0]),
-                        centroid=tuple(pts.mean(axis=0)), middle=tuple(pts[0]), points=pts)
-    own = line(0.0, 20)
-    again = line(0.02, 20, y=1.03)            # the same cells, placed a fraction of a cell off by the merge
-    longer = line(0.5, 30)                    # overlaps the own frontier on a third of its cells
-    elsewhere = line(4.0, 20)
-    kept = drop_own_duplicates([again, longer, elsewhere], [own], res)
-    assert kept == [longer, elsewhere]
-    assert drop_own_duplicates([again], [], res) == [again]
-
-
 def test_team_frontiers_rank_with_the_own_by_cost():
     """A large unexplored part that only the team map shows outranks a small leftover of the robot's own map (the
     robot does not finish every leftover near it while one teammate explores the rest of the building alone)."""
