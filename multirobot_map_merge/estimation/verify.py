@@ -211,18 +211,11 @@ def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     door); neither is free all around. Pieces a pixel apart count as one.
     """
     out = np.zeros(walls.shape, bool)
-    rows, cols = np.nonzero(walls)
-    if rows.size == 0:
+    found = _pieces(walls, ring_px + 2)
+    if found is None:
         return out
-    # only around the pixels asked about: the common area of a map and a union is large
-    margin = ring_px + 2
-    r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    r1, c1 = rows.max() + margin + 1, cols.max() + margin + 1
-    walls, grid = walls[r0:r1, c0:c1], grid[r0:r1, c0:c1]
-    joined = cv2.dilate(walls.view(np.uint8), np.ones((3, 3), np.uint8))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
-    # the joined piece's box less the pixel the dilation added on each side: its extent, a line's length
-    extent = np.hypot(stats[:, cv2.CC_STAT_WIDTH] - 2, stats[:, cv2.CC_STAT_HEIGHT] - 2)
+    window, joined, labels, stats, extent = found
+    walls, grid, count = walls[window], grid[window], len(stats)
     # a ring around each piece (where two rings meet, the larger label takes it: pieces are far apart)
     around = cv2.dilate(labels.astype(np.float32), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(np.int64)
     around[joined > 0] = 0
@@ -230,8 +223,24 @@ def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     free = np.bincount(around.ravel(), weights=(grid == 0).ravel(), minlength=count)
     small = (extent <= size_px) & (free >= MOVABLE_FREE_SHARE * np.maximum(ring, 1))
     small[0] = False   # the background
-    out[r0:r1, c0:c1] = walls & small[labels]
+    out[window] = walls & small[labels]
     return out
+
+
+def _pieces(mask: np.ndarray, margin: int):
+    """The pieces of `mask`, pixels a pixel apart counting as one, labelled in a window around them (only there:
+    the common area of a map and a union is large): (window slices, the joined mask, labels, stats, each piece's
+    extent: its box less the pixel the joining added on each side, a line's length), all in the window; None when
+    the mask is empty."""
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        return None
+    window = (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
+              slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
+    joined = cv2.dilate(mask[window].view(np.uint8), np.ones((3, 3), np.uint8))
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    extent = np.hypot(stats[:, cv2.CC_STAT_WIDTH] - 2, stats[:, cv2.CC_STAT_HEIGHT] - 2)
+    return window, joined, labels, stats, extent
 
 
 GAP_REACH_PX = 3   # pixels beyond a piece's ends where the wall it belongs to must go on
@@ -249,21 +258,17 @@ def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.nd
     shifted by a door's spacing), it fills many gaps: a pair tolerates few such pieces (max_gap_conflicts).
     """
     out = np.zeros(conflicts.shape, bool)
-    rows, cols = np.nonzero(conflicts)
-    if rows.size == 0:
+    found = _pieces(conflicts, int(size_px) + GAP_REACH_PX + 2)
+    if found is None:
         return out
-    margin = int(size_px) + GAP_REACH_PX + 2
-    r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    r1, c1 = rows.max() + margin + 1, cols.max() + margin + 1
-    conflicts, agreeing = conflicts[r0:r1, c0:c1], agreeing[r0:r1, c0:c1]
-    joined = cv2.dilate(conflicts.view(np.uint8), np.ones((3, 3), np.uint8))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(joined, connectivity=8)
+    window, _, labels, stats, extent = found
+    conflicts, agreeing, view = conflicts[window], agreeing[window], out[window]
     reach = np.ones((2 * GAP_REACH_PX + 1,) * 2, np.uint8)
     h, w = conflicts.shape
-    for label in range(1, count):
+    for label in np.flatnonzero(extent <= size_px):
+        if label == 0:
+            continue   # the background
         x, y, bw, bh = (int(v) for v in stats[label, :4])
-        if math.hypot(bw - 2, bh - 2) > size_px:
-            continue
         # the piece and the agreeing walls within reach of it, in a window around it
         wy0, wx0 = max(y - GAP_REACH_PX, 0), max(x - GAP_REACH_PX, 0)
         wy1, wx1 = min(y + bh + GAP_REACH_PX, h), min(x + bw + GAP_REACH_PX, w)
@@ -274,17 +279,16 @@ def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.nd
         if py.size == 0 or ay.size < 2:
             continue
         # the line of the wall: the principal axis of the piece with the agreeing walls next to it
-        pts = np.column_stack([np.concatenate([px, ax]), np.concatenate([py, ay])]).astype(float)
-        centre = pts.mean(axis=0)
-        _, vectors = np.linalg.eigh(np.cov((pts - centre).T))
+        p, a = np.column_stack([px, py]).astype(float), np.column_stack([ax, ay]).astype(float)
+        centre = np.vstack([p, a]).mean(axis=0)
+        _, vectors = np.linalg.eigh(np.cov((np.vstack([p, a]) - centre).T))
         along, across = vectors[:, 1], vectors[:, 0]
-        p_along = (np.column_stack([px, py]) - centre) @ along
-        a_rel = np.column_stack([ax, ay]) - centre
-        in_line = np.abs(a_rel @ across) <= GAP_LINE_PX
-        a_along = a_rel[in_line] @ along
-        if np.abs((np.column_stack([px, py]) - centre) @ across).max() <= GAP_LINE_PX \
+        p_rel, a_rel = p - centre, a - centre
+        p_along = p_rel @ along
+        a_along = a_rel[np.abs(a_rel @ across) <= GAP_LINE_PX] @ along
+        if np.abs(p_rel @ across).max() <= GAP_LINE_PX \
                 and (a_along < p_along.min()).any() and (a_along > p_along.max()).any():
-            out[r0 + wy0:r0 + wy1, c0 + wx0:c0 + wx1] |= piece
+            view[wy0:wy1, wx0:wx1] |= piece
     return out
 
 
