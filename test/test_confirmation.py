@@ -5,7 +5,7 @@ import json
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.confirmation import HELD
+from multirobot_map_merge.estimation.confirmation import HELD, STATIC_AFTER_S
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline
@@ -19,11 +19,11 @@ def _chain(repo_root):
     return [load_map(str(folder / m['file'])) for m in truth['maps']]
 
 
-def _estimate(pipeline, grids):
+def _estimate(pipeline, grids, now=None):
     pipeline.feed(grids)
     return pipeline.estimate(preferred_reference=0 if pipeline.reference is None else pipeline.reference,
                              previous=pipeline.transforms if len(pipeline.transforms) == len(grids) else None,
-                             names=NAMES)
+                             names=NAMES, now=now)
 
 
 def _placed(result):
@@ -47,6 +47,29 @@ def test_new_placements_are_published_once_the_next_estimation_confirms_them(rep
     once = MergingPipeline()
     once.feed(grids)
     assert sum(t is not None for t in once.estimate(preferred_reference=0).transforms) == 3
+
+
+def test_with_a_clock_maps_unchanged_between_two_estimations_confirm_only_once_static_for_long(repo_root):
+    """A few robots' maps can all stay the same between two estimations while they explore (SLAM publishes a map
+    every few seconds): with the time, the same maps confirm a new placement only once unchanged for STATIC_AFTER_S;
+    a change of the map it was placed on confirms it at once, as without a clock."""
+    grids = _chain(repo_root)
+    pipeline = MergingPipeline()
+    assert _placed(_estimate(pipeline, grids, now=100.0)) == {'a'}
+    waited = 0.0
+    while waited + 2.0 < STATIC_AFTER_S:
+        waited += 2.0
+        assert _reasons(_estimate(pipeline, grids, now=100.0 + waited)) == {'b': HELD, 'c': HELD}, waited
+    assert _placed(_estimate(pipeline, grids, now=100.0 + STATIC_AFTER_S)) == {'a', 'b', 'c'}
+    # the maps changed meanwhile: their placements count from the first estimation on the new maps
+    grown = MergingPipeline()
+    _estimate(grown, grids, now=0.0)
+    b = grids[1]
+    edited = b.data.copy()
+    edited[0, 0] = 0 if edited[0, 0] != 0 else 100
+    changed = [grids[0], Grid(edited, b.resolution, b.origin, b.frame_id), grids[2]]
+    assert _placed(_estimate(grown, changed, now=2.0)) == {'a', 'b'}   # b's own map changed: confirmed
+    assert _reasons(_estimate(grown, changed, now=4.0)) == {'c': HELD}
 
 
 def test_a_held_placement_that_does_not_hold_on_the_next_maps_is_not_published(repo_root):

@@ -7,7 +7,7 @@ that moment tells them from right placements; the same maps a little later do: t
 (tracking.py) no longer holds. So a new placement is held back: the next estimations check it on the maps of then,
 as they check every placement they keep, and it is published once it still holds, at the same place, on a map of
 its own that has changed since (the corner's robot had sent no new map 2 s later, and the check on the same map
-still held), or once no map has changed since the last estimation (static maps: no estimation will see more). A
+still held), or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see more). A
 placement published once is not held again (a change of the merged frame re-places robots already confirmed). Only
 with a memory (the node): merge_maps and the offline benchmarks estimate once.
 """
@@ -29,6 +29,20 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.confirmation')
 
 HELD = 'placed for the first time: published once a later estimation confirms it'
 SAME_PLACE_M = 0.5   # metres at the grid's corners: a confirmation refines a placement, it does not move it
+# maps unchanged for this long have stopped: longer than the map update interval of common SLAM nodes (gmapping's and
+# slam_toolbox's default: 5 s), so that a few robots whose maps happen not to change between two estimations (2 s
+# apart) do not count as a fleet that has stopped, and have their first placements confirmed on the same maps
+STATIC_AFTER_S = 6.0
+
+
+def static_for(memory: EstimationMemory, settled: bool, now: Optional[float]) -> bool:
+    """Whether the maps count as static for confirmation: `settled` (the same as in the last estimation) and, when
+    the caller tells the time (`now`), unchanged for STATIC_AFTER_S since the first estimation that saw them."""
+    if now is None:
+        return settled
+    if not settled or memory.unchanged_since is None or now < memory.unchanged_since:
+        memory.unchanged_since = now
+    return settled and now - memory.unchanged_since >= STATIC_AFTER_S
 
 
 def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Optional[EstimationMemory],

@@ -27,7 +27,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
-from .confirmation import hold_new, with_held
+from .confirmation import hold_new, static_for, with_held
 from .features import FeatureCache, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
@@ -152,7 +152,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
              preferred_reference: Optional[int] = None,
              previous: Optional[Sequence[Optional[np.ndarray]]] = None,
              progress: Optional[Progress] = None, memory: Optional[EstimationMemory] = None,
-             names: Optional[Sequence] = None) -> Estimate:
+             names: Optional[Sequence] = None, now: Optional[float] = None) -> Estimate:
     """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
     (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
     (tracking.py) and only the other grids are searched. `memory` (with `names`, stable names of the grids such as
@@ -166,7 +166,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     in the same frame, and moves one of them by more than FRESH_MOVE_M or places more.
 
     With a memory, a grid placed for the first time is left out until a later estimation confirms it
-    (confirmation.py)."""
+    (confirmation.py); `now` (seconds, the caller's clock: ROS time in the node) tells it how long the maps have
+    not changed."""
     count = len(grids)
     published = previous
     previous = with_held(previous, memory, names, preferred_reference, count)
@@ -178,7 +179,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
                             contents, inputs, settled)
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
-                               contents, settled)
+                               contents, static_for(memory, settled, now))
     result.pairs = unique_pairs(result.pairs)
     return result
 

@@ -86,7 +86,8 @@ class EstimationMemory:
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
     (estimator.py); postponed_inputs: the pairs of the last estimation if its search budget left searches to a later
     one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last
-    relaxed (relax.py); held, held_reference: new placements waiting for confirmation (confirmation.py)."""
+    relaxed (relax.py); held, held_reference: new placements waiting for confirmation (confirmation.py);
+    unchanged_since: the time (the caller's clock) of the first estimation on the current maps."""
 
     def __init__(self) -> None:
         self.checks, self.keypoints, self.tries, self.searches = Store(), Store(), Store(), Store()
@@ -99,6 +100,7 @@ class EstimationMemory:
         # name -> (a new placement waiting for confirmation, the content key of the map it was first held on)
         self.held: Dict[str, Tuple[np.ndarray, str]] = {}
         self.held_reference: Optional[str] = None   # the reference grid's name in the estimation that held them
+        self.unchanged_since: Optional[float] = None
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)
         self._compared_lock = threading.Lock()
 

@@ -185,7 +185,7 @@ class MapMergeNode:
         preferred = names.index(reference) if reference in names and grids[names.index(reference)] is not None \
             else None
         # a robot placed before stays placed while its map still agrees with the others (tracking.py)
-        result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=names)
+        result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=names, now=rospy.get_time())
         for p in result.pairs:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,
