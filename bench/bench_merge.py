@@ -3,7 +3,7 @@
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
-    scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--seeds S ...] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --reveal SHARES [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
@@ -225,10 +225,10 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
     return time.perf_counter() - t0
 
 
-def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None) -> Optional[dict]:
+def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, seed: int = 0) -> Optional[dict]:
     """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
     with the shared scorer; None if the scorer is missing or a step failed. With log, merge_maps runs with -v and
-    its stderr (each match judged, with its reason) goes to that file."""
+    its stderr (each match judged, with its reason) goes to that file; `seed`: merge_maps --seed."""
     score_py = SHARED_EVAL / 'score.py'
     if not score_py.is_file():
         print(f'bench_merge: {score_py} not found: not scored', file=sys.stderr)
@@ -238,7 +238,7 @@ def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None) -> 
     result = out_dir / 'result.json'
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
     merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
-             '--output', str(out_dir / 'merged'), *(['-v'] if log else []),
+             '--output', str(out_dir / 'merged'), '--seed', str(seed), *(['-v'] if log else []),
              *(str(folder / m['file']) for m in truth['maps'])]
     print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
     with open(log, 'w') if log else open(os.devnull, 'w') as err:
@@ -325,10 +325,40 @@ def building_names(arg: str) -> List[str]:
     return arg.split(',')
 
 
-def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False) -> int:
-    """Each generated scenario: made if missing, merged by merge_maps -v (its own process), scored; one row each,
-    the median and worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis;
-    with again, each such map is also matched again against right-placed maps and the final union)."""
+def run_seeds(names: List[str], cache: Path, markdown: Optional[Path], again: bool, seeds: List[int]) -> int:
+    """run_buildings once per seed (merge_maps --seed), then one table of every building's placed right / false
+    merges per seed: unseen buildings are as many other draws of the random sampling as other floor plans."""
+    status, per_seed = 0, {}
+    for seed in seeds:
+        print(f'--- seed {seed}', flush=True)
+        rows: List[dict] = []
+        status = max(status, run_buildings(names, cache, None, again, seed, rows))
+        per_seed[seed] = {r['name']: r for r in rows}
+    lines = [f'generated buildings, merge_maps --seed S ({cache}); {machine.describe()}', '',
+             '| building | ' + ' | '.join(f'seed {s}: right / mergeable, false' for s in seeds) + ' |',
+             '|---|' + '---|' * len(seeds)]
+    for name in names:
+        cells = [per_seed[s].get(name) for s in seeds]
+        lines.append(f'| {name} | ' + ' | '.join('-' if c is None else f"{c['correct']}/{c['mergeable']}, {c['wrong']}"
+                                                 for c in cells) + ' |')
+    totals = []
+    for s in seeds:
+        done = list(per_seed[s].values())
+        totals.append(f"{sum(r['correct'] for r in done)}/{sum(r['mergeable'] for r in done)}, "
+                      f"{sum(r['wrong'] for r in done)}")
+    lines.append('| all | ' + ' | '.join(totals) + ' |')
+    print('\n'.join([''] + lines), flush=True)
+    if markdown:
+        markdown.write_text('\n'.join(lines) + '\n')
+    return status
+
+
+def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False, seed: int = 0,
+                  out_rows: Optional[List[dict]] = None) -> int:
+    """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process), scored;
+    one row each (also appended to `out_rows`), the median and worst estimation, then why each mergeable map left out
+    or placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
+    and the final union)."""
     import make_sample_maps
     from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
@@ -342,8 +372,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
             continue
         folder = cache / name
         truth = json.loads((folder / 'truth.json').read_text())
-        log = cache / f'{name}_result' / 'merge_maps.log'
-        scored = merge_and_score(folder, cache / f'{name}_result', log)
+        result_dir = cache / (f'{name}_result' if seed == 0 else f'{name}_result_seed{seed}')
+        log = result_dir / 'merge_maps.log'
+        scored = merge_and_score(folder, result_dir, log, seed)
         spec = make_sample_maps.GENERATED.get(name, {})
         pattern = spec.get('pattern', 'random')
         if scored is None:
@@ -356,7 +387,7 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         if again and verdicts:
             print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr,
                   flush=True)
-            matched = replay(folder, truth, scored, cache / f'{name}_result', verdicts)
+            matched = replay(folder, truth, scored, result_dir, verdicts)
             notes += [line for line, _ in matched]
             for _, label in matched:
                 replayed[label] = replayed.get(label, 0) + 1
@@ -364,6 +395,8 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         left = sum(v.outcome == 'left out' for v in verdicts)
         rows.append({'name': name, 'pattern': pattern, 'mergeable': scored['mergeable'], 'correct': scored['correct'],
                      'wrong': scored['wrong'], 'left': left, 'broken_ok': scored['broken_ok'], 't': t})
+        if out_rows is not None:
+            out_rows.append(rows[-1])
     done = [r for r in rows if isinstance(r, dict)]
     lines = [f'generated buildings ({cache}): merge_maps -v, one process per building, cold; {machine.describe()}', '',
              '| building | robots | placed right / mergeable | false merges | mergeable left out | broken placed '
@@ -445,6 +478,9 @@ def main() -> int:
                     help='with --generated: match each mergeable map not placed right again, against the right-placed '
                          'maps it overlaps most and against the merged map, each verdict checked with the truth '
                          '(after the timing: a pair refused that the union also refuses, or accepted by pairs only)')
+    ap.add_argument('--seeds', metavar='S', type=int, nargs='+', default=[0],
+                    help='with --generated: merge each building once per seed of the random sampling (merge_maps '
+                         '--seed), then a table of placed right and false merges per building and seed (default: 0)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario revealed as a fleet explores it, estimated afresh at these shares '
                          'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
@@ -458,7 +494,10 @@ def main() -> int:
         unknown = [n for n in names if n not in make_sample_maps.GENERATED]
         if unknown:
             ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
-        return run_buildings(names, (args.large36 or REPO / 'out' / 'bench').resolve(), args.markdown, args.replay)
+        cache = (args.large36 or REPO / 'out' / 'bench').resolve()
+        if args.seeds != [0]:
+            return run_seeds(names, cache, args.markdown, args.replay, args.seeds)
+        return run_buildings(names, cache, args.markdown, args.replay)
     if args.large36:
         return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)

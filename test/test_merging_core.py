@@ -168,6 +168,23 @@ def test_merge_maps_cli_on_sample_maps(repo_root, tmp_path):
     assert merged.width * merged.height > max(load_map(m).data.size for m in maps) / 2
 
 
+def test_merge_maps_cli_seed_gives_the_same_merge_every_time(repo_root, tmp_path):
+    """--seed sets the random sampling: the same maps and seed give the same placements, whatever the seed."""
+    maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'three_robots').glob('map_*.yaml'))
+    truth = json.loads((repo_root / 'data' / 'samples' / 'three_robots' / 'truth.json').read_text())
+    runs = []
+    for n in range(2):
+        out = tmp_path / f'{n}.json'
+        assert merge_maps(['--seed', '7', '--output', str(tmp_path / f'm{n}'), '--transforms-json', str(out),
+                           *maps]) == 0
+        runs.append([m['transform'] for m in json.loads(out.read_text())['maps']])
+    assert runs[0] == runs[1]
+    est = [tf.rigid(t['x'], t['y'], t['yaw']) for t in runs[0]]
+    for k in range(3):
+        rot, cells = placement_error(truth, est, 0, k)
+        assert rot <= 1.5 and cells <= 3
+
+
 def test_merge_maps_cli_known_poses_and_no_overlap(repo_root, tmp_path):
     maps = sorted(str(p) for p in (repo_root / 'data' / 'samples' / 'no_overlap').glob('map_*.yaml'))
     rc = merge_maps(['--output', str(tmp_path / 'a'), '--transforms-json', str(tmp_path / 'a.json'), *maps])
