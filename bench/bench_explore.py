@@ -47,7 +47,7 @@ from fleet_sim.sim import FleetSim  # noqa: E402
 
 # The explore parameters of launch/demo.launch (explore.launch's values, a faster planner for the sim).
 DEMO_EXPLORE = dict(planner_frequency=0.5, progress_timeout=30.0, potential_scale=3.0, gain_scale=1.0,
-                    min_frontier_size=0.75, team_radius=3.0, path_distance=True)
+                    min_frontier_size=0.75, team_radius=4.0, path_distance=True)
 TARGET = 0.95
 MILESTONES = (0.5, 0.75, 0.9)   # shares whose times are printed too: where a fleet loses its time
 # The map merge as the bench models it: every MERGE_PERIOD s, robots whose maps share at least MIN_OVERLAP m² of

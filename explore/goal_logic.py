@@ -221,19 +221,22 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     nearest to it. Who is first, per teammate goal ``g``:
 
     - with the teammate's remaining distance to ``g`` (``team_distances``, inf: unknown) and the frontier's
-      distance from this robot (``min_distance``): the teammate if its remaining distance plus the straight line
-      from ``g`` to the centroid is shorter. This robot's own distance, not its goal, counts: a robot that chose a
-      far goal must not keep the frontiers there from a teammate standing next to them;
+      distance from this robot (``min_distance``): the teammate if its remaining distance plus DETOUR times the
+      straight line from ``g`` to the centroid is shorter. This robot's own distance, not its goal, counts: a robot
+      that chose a far goal must not keep the frontiers there from a teammate standing next to them;
     - else, with ``heading`` (this robot's own goal, or its position when it has none): the teammate if the centroid
       is nearer (straight line) to ``g`` than to ``heading``. Goals are compared with goals so that two robots agree
       which of them a frontier is left to (comparing a teammate's goal with one's own position, both could leave
       it to the other).
 
     Formula: a penalised frontier gets ``cost + P`` with ``P = (max − min of the finite costs) + 1``, so each
-    penalised cost is above every unpenalised finite cost; the result is re-sorted (stable) with all penalised
-    frontiers after all unpenalised ones (also for inf/NaN costs). A robot therefore goes where a teammate is
-    heading only when every other frontier is gone or blacklisted. No team goals: the input order, unchanged.
-    ``team_goals`` must be in the frontiers' frame and exclude this robot's own goal.
+    penalised cost is above every unpenalised finite cost. The result is re-sorted (stable) in three tiers: the
+    unpenalised frontiers in cost order (NaN last), then those left to a teammate by distance only, then those
+    within ``team_radius`` of a teammate's goal, both demoted tiers nearest first (``min_distance``). A robot
+    therefore goes where a teammate is heading only when every other frontier is gone or blacklisted, and then
+    helps nearby rather than crossing the building for a large frontier a teammate already works on.
+    No team goals: the input order, unchanged. ``team_goals`` must be in the frontiers' frame and exclude this
+    robot's own goal.
     """
     if not team_goals or not frontiers:
         return list(frontiers)
@@ -243,18 +246,30 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     keyed = []
     for f in frontiers:
         own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
-        near = any(_left_to(f, g, d, team_radius, own) for g, d in zip(team_goals, distances))
-        g = replace(f, cost=f.cost + penalty) if near else f
-        keyed.append(((near, math.isnan(g.cost), g.cost), g))
+        at_goal = any(_dist(f.centroid, g) < team_radius for g in team_goals)
+        if at_goal or any(_left_to(f, g, d, own) for g, d in zip(team_goals, distances)):
+            tier = 2 if at_goal else 1
+            keyed.append(((tier, (math.isnan(f.cost), f.min_distance)), replace(f, cost=f.cost + penalty)))
+        else:
+            keyed.append(((0, (math.isnan(f.cost), f.cost)), f))
     keyed.sort(key=lambda kv: kv[0])
     return [g for _, g in keyed]
 
 
-def _left_to(f: Frontier, goal: Sequence[float], remaining: float, team_radius: float, own_heading: float) -> bool:
-    """True if frontier ``f`` is left to the teammate heading for ``goal`` (see apply_team_penalty)."""
-    to_goal = math.hypot(f.centroid[0] - goal[0], f.centroid[1] - goal[1])
-    if to_goal < team_radius:
-        return True
+# A teammate's way from its goal to a frontier is estimated by the straight line times this factor: this robot's
+# own distance (min_distance) runs along the map, round walls and through doors, and a bare straight line would
+# leave to a teammate frontiers that it reaches later than this robot (a robot then crosses the building instead).
+DETOUR = 1.4
+
+
+def _dist(a: Sequence[float], b: Sequence[float]) -> float:
+    return math.hypot(a[0] - b[0], a[1] - b[1])
+
+
+def _left_to(f: Frontier, goal: Sequence[float], remaining: float, own_heading: float) -> bool:
+    """True if frontier ``f``, beyond ``team_radius`` of ``goal``, is left to the teammate heading for ``goal``
+    (see apply_team_penalty)."""
+    to_goal = _dist(f.centroid, goal)
     if math.isfinite(remaining) and math.isfinite(f.min_distance):
-        return remaining + to_goal < f.min_distance
+        return remaining + DETOUR * to_goal < f.min_distance
     return to_goal < own_heading

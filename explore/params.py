@@ -54,7 +54,7 @@ class ExploreParams:
                          "frontiers within `team_radius` of another robot's goal. Empty disables coordination.",
                          extension=True)
     team_frame: str = _p('world', "Frame in which goals are exchanged on `team_topic`.", extension=True)
-    team_radius: float = _p(3.0, "Frontiers whose centroid is closer than this to another robot's goal are "
+    team_radius: float = _p(4.0, "Frontiers whose centroid is closer than this to another robot's goal are "
                             "chosen only when no other frontier is left.", 'm', extension=True)
     team_map_topic: str = _p('', "Merged map of the team (`nav_msgs/OccupancyGrid` in `team_frame`, e.g. "
                              "map_merge's map with its `publish_tf`): frontiers whose far side this map already "

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from explore.frontier_search import Frontier
-from explore.goal_logic import (ABORTED, PREEMPTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty,
+from explore.goal_logic import (ABORTED, DETOUR, PREEMPTED, SUCCEEDED, GoalLogic, PlanAction, apply_team_penalty,
                                 on_blacklist, same_point)
 from explore.params import ExploreParams, ParamError, describe
 
@@ -207,6 +207,33 @@ def test_frontier_a_teammate_reaches_first_is_left_to_it_whatever_this_robot_cho
     # an unknown distance (inf) falls back to the goal-to-goal rule; team_radius holds in any case
     assert apply_team_penalty([far, near], teammate, 0.5, heading, [math.inf])[0] is far
     assert apply_team_penalty([far, near], teammate, 3.0, heading, [60.0])[0] is near
+
+
+def test_demoted_frontiers_nearest_first_and_a_teammates_goal_last():
+    """Demoted frontiers come in two tiers after the robot's own: those a teammate only reaches first, then those
+    within team_radius of a teammate's goal; each tier nearest first (min_distance), whatever the gain."""
+    mine = frontier(-5.0, 0.0, 5.0, min_distance=5.0)
+    at_goal_near = frontier(10.0, 0.0, -20.0, min_distance=10.0)
+    left_far_big = frontier(30.0, 0.0, -30.0, min_distance=30.0)      # large, cheapest by cost
+    left_near = frontier(20.0, 0.0, -1.0, min_distance=20.0)
+    teammate = [(10.5, 0.0)]                                            # 1 m from its goal
+    out = apply_team_penalty([left_far_big, at_goal_near, left_near, mine], teammate, 3.0, (-5.0, 0.0), [1.0])
+    assert [f.centroid for f in out] == [(-5.0, 0.0), (20.0, 0.0), (30.0, 0.0), (10.0, 0.0)]
+    assert all(f.cost > 5.0 for f in out[1:])                            # penalised above every own cost
+
+
+def test_teammates_way_from_its_goal_counts_with_a_detour():
+    """The straight line from a teammate's goal is stretched by DETOUR before it is compared with this robot's
+    distance along the map: a frontier the teammate is only slightly nearer to by a straight line stays this
+    robot's."""
+    f = frontier(10.0, 0.0, -1.0, min_distance=10.0)
+    other = frontier(-20.0, 0.0, 0.0, min_distance=20.0)
+    goal = [(18.0, 0.0)]                                                # 8 m straight from the frontier
+    # 1 + 8 < 10 but 1 + 1.4 * 8 > 10: kept
+    assert apply_team_penalty([f, other], goal, 0.5, (0.0, 0.0), [1.0])[0] is f
+    # 1 + 1.4 * 5 < 10: left to the teammate
+    assert apply_team_penalty([f, other], [(15.0, 0.0)], 0.5, (0.0, 0.0), [1.0])[0] is other
+    assert DETOUR == pytest.approx(1.4)
 
 
 def test_penalised_frontier_chosen_when_others_blacklisted():
