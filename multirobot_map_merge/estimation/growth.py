@@ -6,7 +6,7 @@ the rest against the grown union. A round that adds nobody runs the costly corre
 by descriptors only), on the remaining grids smallest first. Work whose answer cannot have changed is skipped: a
 grid is not matched again against a union that has not changed where its last match placed it, nor, when its
 descriptors found no candidate at all there, against one whose new members' descriptors do not agree on a rigid model
-with its own (the 36 generated maps: 490 matches before, 352 now), nor searched again
+with its own (on the generated 36-map buildings that skips over a quarter of the matches), nor searched again
 against one that has grown by less than a quarter since (with an EstimationMemory, memory.py, also from one
 estimation of a live fleet to the next while its own map has barely changed); members' keypoints are kept until
 their maps grow.
