@@ -245,7 +245,7 @@ def apply_team_penalty(frontiers: Sequence[Frontier], team_goals: Sequence[Seque
     penalty = (max(finite) - min(finite) + 1.0) if finite else 1.0
     keyed = []
     for f in frontiers:
-        own = 0.0 if heading is None else math.hypot(f.centroid[0] - heading[0], f.centroid[1] - heading[1])
+        own = 0.0 if heading is None else _dist(f.centroid, heading)
         at_goal = any(_dist(f.centroid, g) < team_radius for g in team_goals)
         if at_goal or any(_left_to(f, g, d, own) for g, d in zip(team_goals, distances)):
             tier = 2 if at_goal else 1

@@ -37,7 +37,8 @@ STATIC_AFTER_S = 6.0
 
 def static_for(memory: EstimationMemory, settled: bool, now: Optional[float]) -> bool:
     """Whether the maps count as static for confirmation: `settled` (the same as in the last estimation) and, when
-    the caller tells the time (`now`), unchanged for STATIC_AFTER_S since the first estimation that saw them."""
+    the caller tells the time (`now`), unchanged for STATIC_AFTER_S since the first estimation that saw them (kept
+    in memory.unchanged_since, set here when the maps have changed)."""
     if now is None:
         return settled
     if not settled or memory.unchanged_since is None or now < memory.unchanged_since:

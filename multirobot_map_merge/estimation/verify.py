@@ -280,8 +280,9 @@ def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.nd
             continue
         # the line of the wall: the principal axis of the piece with the agreeing walls next to it
         p, a = np.column_stack([px, py]).astype(float), np.column_stack([ax, ay]).astype(float)
-        centre = np.vstack([p, a]).mean(axis=0)
-        _, vectors = np.linalg.eigh(np.cov((np.vstack([p, a]) - centre).T))
+        pts = np.vstack([p, a])
+        centre = pts.mean(axis=0)
+        _, vectors = np.linalg.eigh(np.cov((pts - centre).T))
         along, across = vectors[:, 1], vectors[:, 0]
         p_rel, a_rel = p - centre, a - centre
         p_along = p_rel @ along
