@@ -17,7 +17,7 @@ import dataclasses
 import logging
 import time
 from concurrent.futures import Executor
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence, Set
 
 import numpy as np
 
@@ -29,12 +29,14 @@ from .memory import EstimationMemory
 from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import contradicted_members
+from .stronger import PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .verify import overlap_found
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
+FEW_MEMBERS = 3        # a weak match onto this many grids or fewer is checked against all of the grid's pairs
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
 
@@ -127,6 +129,7 @@ class Grower:
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
         self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
+        self.pair_evidence = PairEvidence(prepared, settings, pool)   # stronger.py
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -180,6 +183,9 @@ class Grower:
                 for k in batch:
                     self.tried[(k, id(group))] = group.union.version
                 results = list(self.pool.map(lambda k: self.match(k, group, search=False), batch))
+                if len(group.members) == 1:
+                    for m in results:
+                        self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
                 for m in results:
                     if m.best is None:
                         self.blind[(m.i, id(group))] = frozenset(group.members)
@@ -242,7 +248,10 @@ class Grower:
 
     def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
         added = False
+        matched_onto = set(group.members)   # however many of the grids join it now
         for m in sorted(results, key=lambda m: -m.weight):
+            if m.accepted and self._waits(m, matched_onto):
+                continue
             if m.accepted:
                 group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
                 unplaced.remove(m.i)
@@ -259,6 +268,22 @@ class Grower:
                         and m.best.overlap_m2 >= self.s.min_overlap_m2:
                     self.contradicting.add(m.i)
         return added
+
+    def _waits(self, m: PairMatch, members: Set[int]) -> bool:
+        """Whether the accepted match m of a single grid onto the grids `members` waits for a stronger pair with a
+        grid outside them (stronger.py): matched as a pair against every grid when `members` are few
+        (FEW_MEMBERS: two maps alone are the weakest evidence, a union of a few little more), onto a larger union
+        among the pairs matched already (it is judged on all its members' walls, and weak matches onto large unions
+        are common where walls are irregular). Then it counts as refused, but not as evidence that the grid
+        contradicts the group."""
+        outside = (x for x, p in enumerate(self.prepared) if p is not None and x not in members)
+        why = stronger_elsewhere(m, self.pair_evidence, outside, self.s, skip=lambda x: x in self.evicted,
+                                 compute=len(members) <= FEW_MEMBERS)
+        if why is None:
+            return False
+        log.debug('grid %d onto group %d %s', m.i, m.j, why)
+        self.refused[m.i] = dataclasses.replace(m, accepted=False, reason=why)
+        return True
 
     def _forget_search(self, k: int, group: Group) -> None:
         """Grid k is placed in the group: a search of it against the group that memory keeps (made before it was
@@ -416,7 +441,7 @@ class Grower:
                     if len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version:
                         continue   # a single grid was matched against this union already
                     m = self._match_groups(small, big)
-                    if m.accepted:
+                    if m.accepted and not (len(small.members) == 1 and self._waits(m, set(big.members))):
                         # the merged frame stays that of the preferred reference's group
                         if self.reference in small.members:
                             self._restate_refused(big.seed, small.seed, tf.inverse(m.transform_m))
