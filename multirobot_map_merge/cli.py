@@ -178,7 +178,8 @@ def warn_unused(maps: Sequence[str], pipeline: MergingPipeline) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = EstimationSettings(feature=args.feature, confidence=args.confidence, threads=max(args.threads, 1),
-                                  seed=args.seed, free_threshold=args.free_threshold, occupied_threshold=args.occupied_threshold)
+                                  seed=args.seed, free_threshold=args.free_threshold,
+                                  occupied_threshold=args.occupied_threshold)
     try:
         settings.validate()
     except ValueError as e:

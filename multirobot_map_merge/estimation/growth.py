@@ -29,14 +29,13 @@ from .memory import EstimationMemory
 from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import contradicted_members
-from .stronger import PairEvidence, stronger_elsewhere
+from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .verify import overlap_found
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
-FEW_MEMBERS = 3        # a weak match onto this many grids or fewer is checked against all of the grid's pairs
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
 
@@ -276,7 +275,7 @@ class Grower:
         among the pairs matched already (it is judged on all its members' walls, and weak matches onto large unions
         are common where walls are irregular). Then it counts as refused, but not as evidence that the grid
         contradicts the group."""
-        outside = (x for x, p in enumerate(self.prepared) if p is not None and x not in members)
+        outside = (x for x in range(len(self.prepared)) if x not in members)
         why = stronger_elsewhere(m, self.pair_evidence, outside, self.s, skip=lambda x: x in self.evicted,
                                  compute=len(members) <= FEW_MEMBERS)
         if why is None:

@@ -6,7 +6,7 @@ map it really overlaps, as a pair, with more support and without contradictions.
 (seeds 0-2 of `bench_merge.py --generated`) such matches agreed 0.935-0.987 and put 1-11 maps of a building off
 (every right pair there agreed 0.99 or better); which one came first depended on the random draw.
 
-So a grid accepted onto a few grids (growth.FEW_MEMBERS) with an agreement below WEAK_AGREEMENT is matched as a
+So a grid accepted onto a few grids (FEW_MEMBERS) with an agreement below WEAK_AGREEMENT is matched as a
 pair against every grid outside them (descriptors only; each pair once per estimation); accepted onto a larger
 union so, against the grids it was matched with as a pair already (a union is judged on all its members' walls,
 and weak matches onto large unions are common where walls are irregular). When one of those pairs agrees by
@@ -25,6 +25,7 @@ from .settings import EstimationSettings
 
 WEAK_AGREEMENT = 0.99     # below this an accepted match is checked against the grid's pairs
 AGREEMENT_MARGIN = 0.01   # a pair agreeing this much better (with more support) is the stronger evidence
+FEW_MEMBERS = 3           # a weak match onto this many grids or fewer is checked against all of the grid's pairs
 
 
 class PairEvidence:
