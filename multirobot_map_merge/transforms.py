@@ -47,7 +47,8 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
     In 2-D the best rotation has a closed form, the angle of the cross-covariance (what Kabsch's SVD gives, for a
     fraction of its cost: ICP calls this thousands of times per estimation)."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    n = len(src)
+    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n   # the means, without np.mean's overhead
     cov = (src - ms).T @ (dst - md)
     angle = math.atan2(cov[0, 1] - cov[1, 0], cov[0, 0] + cov[1, 1])
     c, s = math.cos(angle), math.sin(angle)

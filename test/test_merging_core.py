@@ -256,6 +256,21 @@ def test_walls_seen_from_opposite_sides_do_not_make_a_match():
     assert verify(pa, pb, faces_on_faces, s.replace(facing=False)).support > 100
 
 
+@pytest.mark.parametrize('radius', [0.5, 0.955, 1.3693, 2.0, 3.0, 6.5])
+def test_walls_near_by_dilation_as_by_the_distance_field(radius):
+    """verify's agreeing walls: the chamfer disc dilation marks the same pixels as thresholding OpenCV's 3x3 L2
+    distance field, also at the metric's own step lengths and for walls at the image border (seed printed)."""
+    import cv2
+    from multirobot_map_merge.estimation.verify import near_walls
+    seed = int(radius * 1000)
+    print('seed', seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        walls = rng.random((int(rng.integers(3, 120)), int(rng.integers(3, 120)))) < rng.choice([0.002, 0.02, 0.1])
+        field = cv2.distanceTransform(np.where(walls, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
+        assert np.array_equal(near_walls(walls, radius), field <= radius)
+
+
 def test_contradictions_well_inside_both_views_count_and_fringe_ones_do_not():
     """At the right placement walls contradict only at the fringe of the other map's view (the ends of its beams);
     a wall well inside an area the other map saw free contradicts the placement."""

@@ -44,24 +44,29 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
     if len(src) < 10 or len(pj.walls) < 10:
         return model
     h, w = pj.work.shape
+    nearest, walls, normals = pj.nearest_wall.reshape(-1), pj.walls, pj.wall_normals
     # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
+    # (flat `take`s instead of fancy indexing, and a negative coordinate fails the bound as a huge unsigned one:
+    # ICP is the estimation's inner loop, and this halves it)
     for radius in s.icp_radii:
         for _ in range(s.icp_iterations):
             moved = tf.apply(model, src)
-            # the nearest wall of j (pj.nearest, inlined: ICP is the estimation's inner loop)
-            x, y = np.rint(moved).astype(np.int64).T
-            pick = np.flatnonzero((x >= 0) & (y >= 0) & (x < w) & (y < h))
-            wall = pj.nearest_wall[y[pick], x[pick]]
-            nn = pj.walls[wall]
-            close = ((nn - moved[pick]) ** 2).sum(axis=1) < radius * radius
-            pick, wall, nn = pick[close], wall[close], nn[close]
-            if s.facing and len(pick):
+            xy = np.rint(moved).astype(np.int64)
+            x, y = xy[:, 0], xy[:, 1]
+            pick = np.flatnonzero((x.view(np.uint64) < w) & (y.view(np.uint64) < h))
+            # the nearest wall of j (pj.nearest, inlined)
+            wall = nearest.take(y.take(pick) * w + x.take(pick))
+            nn = walls.take(wall, axis=0)
+            gap = nn - moved.take(pick, axis=0)
+            dx, dy = gap[:, 0], gap[:, 1]
+            close = np.flatnonzero(dx * dx + dy * dy < radius * radius)
+            if s.facing and len(close):
                 # a wall's two faces are not the same wall: pair only walls seen from the same side
-                same_side = ~opposed(src_side[pick] @ model[:2, :2].T, pj.wall_normals[wall])
-                pick, nn = pick[same_side], nn[same_side]
-            if len(pick) < 10:
+                turned = src_side.take(pick.take(close), axis=0) @ model[:2, :2].T
+                close = close[~opposed(turned, normals.take(wall.take(close), axis=0))]
+            if len(close) < 10:
                 return model
-            step = tf.kabsch(moved[pick], nn)
+            step = tf.kabsch(moved.take(pick.take(close), axis=0), nn.take(close, axis=0))
             model = step @ model
             if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
                 break

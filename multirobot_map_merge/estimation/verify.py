@@ -8,6 +8,7 @@ be a wrong merge).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional, Tuple
@@ -148,10 +149,9 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     n_i, n_j = np.count_nonzero(walls_i), np.count_nonzero(walls_j)
     if n_i + n_j == 0:
         return result
-    dist_i = cv2.distanceTransform(np.where(wi >= 50, 0, 255).astype(np.uint8), cv2.DIST_L2, 3)
     tol = s.verify_tolerance
     near_j = pj.wall_distance[r0:r1, c0:c1] <= tol
-    near_i = dist_i <= tol
+    near_i = near_walls(wi >= 50, tol)
     agree_i, agree_j = walls_i & near_j, walls_j & near_i
     support = np.count_nonzero(agree_i) + np.count_nonzero(agree_j)
     neutral = 0
@@ -199,6 +199,31 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     result.opposed = neutral
     result.agreement = support / float(max(support + result.conflicts - result.fringe_conflicts, 1))
     return result
+
+
+# weights of the 3x3 chamfer metric of OpenCV's distanceTransform (DIST_L2, mask 3): an edge step, a diagonal one
+CHAMFER_EDGE, CHAMFER_DIAGONAL = 0.955, 1.3693
+
+
+@functools.lru_cache(maxsize=8)
+def chamfer_disc(radius: float) -> np.ndarray:
+    """The offsets within `radius` in the 3x3 chamfer metric, as a dilation kernel."""
+    r = int(radius // CHAMFER_EDGE) + 1
+    dist = np.full((2 * r + 1,) * 2, np.inf)
+    dist[r, r] = 0.0
+    for _ in range(2 * r):   # shortest paths of edge and diagonal steps, relaxed until they settle
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            step = CHAMFER_DIAGONAL if dx and dy else CHAMFER_EDGE
+            for sy, sx in ((dy, dx), (-dy, -dx)):
+                moved = np.roll(dist, (sy, sx), axis=(0, 1)) + step
+                dist = np.minimum(dist, moved)
+    return (dist <= radius).astype(np.uint8)
+
+
+def near_walls(walls: np.ndarray, radius: float) -> np.ndarray:
+    """Where a pixel of the bool mask `walls` lies within `radius`: the same as thresholding distanceTransform's
+    DIST_L2 (3x3 mask) field, by a dilation four times cheaper (verify runs thousands of times)."""
+    return cv2.dilate(walls.view(np.uint8), chamfer_disc(float(radius))).view(bool)
 
 
 def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: int = RING_PX) -> np.ndarray:
