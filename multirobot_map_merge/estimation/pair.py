@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, List, Optional
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid
+from .features import PreparedGrid, nonzero_2d
 from .hypotheses import hypotheses, putative_matches, quick_agreement
 from .polish import polish
 from .refine import icp
@@ -75,7 +75,7 @@ def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) 
         return []
     x0, y0, x1, y1 = box
     warped = warp_into(pi.work.view(np.uint8), best.transform, box, 255).view(np.int8)
-    rows, cols = np.nonzero((warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0))
+    rows, cols = nonzero_2d((warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0))
     if rows.size == 0:
         return []
     cx, cy = cols.mean() + x0, rows.mean() + y0

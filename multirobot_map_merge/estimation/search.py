@@ -20,7 +20,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from .features import PreparedGrid
+from .features import PreparedGrid, nonzero_2d
 from .validation import must_not_be_negative
 
 PENALTY = 3.0
@@ -227,7 +227,7 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
             return   # no peak of this angle can rank among the best `keep`
         # local maxima, best first
         peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
-        ys, xs = np.nonzero(peaks)
+        ys, xs = nonzero_2d(peaks)
         if ys.size == 0:
             return
         order = np.argsort(score[ys, xs])[::-1]

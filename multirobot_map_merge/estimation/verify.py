@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid, opposed
+from .features import PreparedGrid, nonzero_2d, opposed
 from .precision import corner_error
 from .validation import must_be_positive, must_not_be_negative
 
@@ -157,7 +157,7 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     neutral = 0
     if s.facing and support:
         # only at the agreeing walls: the side fields are costly over the whole area
-        rows, cols = np.nonzero(agree_i | agree_j)
+        rows, cols = nonzero_2d(agree_i | agree_j)
         weight = agree_i[rows, cols].astype(np.int64) + agree_j[rows, cols]
         # i's free side there: looked up in i's own field through the inverse placement and turned with it (the
         # same as the field of the warped grid, without computing one over the whole common area)
@@ -172,7 +172,7 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     deep_px = s.deep_conflict_m / pi.resolution
     conflicts_i = walls_i & ~near_j
     depth_i = pj.known_depth[r0:r1, c0:c1][conflicts_i]
-    rows, cols = np.nonzero(walls_j & ~near_i)
+    rows, cols = nonzero_2d(walls_j & ~near_i)
     depth_j = np.zeros(0, np.float32)
     if rows.size:
         # j's contradicting walls: i's depth at the same place, looked up through the inverse placement
@@ -257,7 +257,7 @@ def _pieces(mask: np.ndarray, margin: int):
     the common area of a map and a union is large): (window slices, the joined mask, labels, stats, each piece's
     extent: its box less the pixel the joining added on each side, a line's length), all in the window; None when
     the mask is empty."""
-    rows, cols = np.nonzero(mask)
+    rows, cols = nonzero_2d(mask)
     if rows.size == 0:
         return None
     window = (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
