@@ -46,20 +46,21 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Least-squares rigid transform (3x3) taking src points onto dst points (no reflection, no scale).
 
     In 2-D the best rotation has a closed form, the angle of the cross-covariance (what Kabsch's SVD gives, for a
-    fraction of its cost: ICP calls this thousands of times per estimation)."""
+    fraction of its cost: ICP calls this thousands of times per estimation); the covariance from the raw sums, in
+    one product."""
     n = len(src)
-    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n   # the means, without np.mean's overhead
-    cov = (src - ms).T @ (dst - md)
+    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n
+    cov = src.T @ dst - n * np.outer(ms, md)
     angle = math.atan2(cov[0, 1] - cov[1, 0], cov[0, 0] + cov[1, 1])
     c, s = math.cos(angle), math.sin(angle)
-    m = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    m[:2, 2] = md - m[:2, :2] @ ms
-    return m
+    return np.array([[c, -s, md[0] - c * ms[0] + s * ms[1]], [s, c, md[1] - s * ms[0] - c * ms[1]], [0.0, 0.0, 1.0]])
 
 
 def difference(a: np.ndarray, b: np.ndarray, at: np.ndarray) -> Tuple[float, float]:
-    """How far apart two transforms are: (|rotation difference| in radians, largest displacement of points `at`)."""
-    d = inverse(b) @ a
-    rot = abs(math.atan2(d[1, 0], d[0, 0]))
-    disp = np.hypot(*(apply(a, at) - apply(b, at)).T).max() if len(at) else 0.0
-    return rot, float(disp)
+    """How far apart two similarity transforms are: (|rotation difference| in radians, largest displacement of
+    points `at`). Without inverting b (the estimation compares placements thousands of times)."""
+    rot = abs(math.atan2(a[1, 0] * b[0, 0] - a[0, 0] * b[1, 0], a[0, 0] * b[0, 0] + a[1, 0] * b[1, 0]))
+    if not len(at):
+        return rot, 0.0
+    gap = a - b
+    return rot, float(np.hypot(*(np.asarray(at, float) @ gap[:2, :2].T + gap[:2, 2]).T).max())
