@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""Where one estimation's time goes, and what its two threads gain (not a test: it prints figures).
+
+    scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain]
+
+MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
+estimation runs serially (its thread pools replaced by loops, OpenCV on one thread) under cProfile, and the time of
+its parts is printed: ICP, the verification of candidates, descriptor distances, the correlation search, the
+polish, detection, RANSAC. With --threads-gain it also prints the wall time of the serial estimation alone, of the
+estimation on its threads (the default settings), and of two serial estimations in two processes at once: what
+the second core gives to threads (which hold the GIL in turn) and to processes.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import pstats
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_MAPS = REPO / 'out' / 'bench' / 'hospital36'
+
+# the parts: (label, (file suffix, function name)) whose cumulative time is reported; OpenCV's functions ('~')
+# by a part of their name, which differs between OpenCV builds
+PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')),
+         ('descriptor distances', ('~', 'batchDistance')),
+         ('correlation search', ('search.py', 'correlate_candidates')), ('polish', ('polish.py', 'polish')),
+         ('detection', ('~', 'detectAndCompute')),
+         ('RANSAC', ('hypotheses.py', 'ransac_rigid'))]
+
+# one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; prints wall s
+ONE = '''
+import glob, sys, time
+sys.path.insert(0, {root!r})
+serial = {serial!r}
+import cv2
+from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.estimation.settings import EstimationSettings
+import multirobot_map_merge.estimation.estimator as estimator, multirobot_map_merge.estimation.search as search
+class Loop:
+    def __init__(self, max_workers=None): pass
+    def __enter__(self): return self
+    def __exit__(self, *exc): return False
+    def map(self, f, *its): return [f(*a) for a in zip(*its)]
+if serial:
+    cv2.setNumThreads(1)
+    estimator.ThreadPoolExecutor = search.ThreadPoolExecutor = Loop
+grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
+wall = time.perf_counter()
+estimator.estimate(grids, EstimationSettings())
+print(time.perf_counter() - wall)
+'''
+
+
+def run(maps: Path, serial: bool, profile: str = '') -> subprocess.Popen:
+    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial)
+    if profile:
+        code = code.replace('estimator.estimate(grids, EstimationSettings())',
+                            f'import cProfile; cProfile.run("estimator.estimate(grids, EstimationSettings())", '
+                            f'{profile!r})')
+    return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
+
+
+def seconds(process: subprocess.Popen) -> float:
+    out, _ = process.communicate()
+    if process.returncode:
+        sys.exit(f'profile_estimation: the estimation failed (exit {process.returncode})')
+    return float(out.split()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
+    ap.add_argument('--threads-gain', action='store_true', help='also time threads and two processes')
+    args = ap.parse_args()
+    if not glob.glob(str(args.maps / 'map_*.yaml')):
+        sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
+    out = Path('/tmp') / f'profile_estimation_{args.maps.name}.prof'
+    total = seconds(run(args.maps, True, str(out)))
+    stats = pstats.Stats(str(out)).stats
+    print(f'{args.maps.name}: serial estimation under cProfile {total:.2f} s')
+    for label, (suffix, name) in PARTS:
+        spent = sum(v[3] for (path, _, func), v in stats.items()
+                    if path.endswith(suffix) and (func == name or suffix == '~' and name in func))
+        print(f'  {label:22s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
+    if args.threads_gain:
+        alone = seconds(run(args.maps, True))
+        threads = seconds(run(args.maps, False))
+        both = [run(args.maps, True), run(args.maps, True)]
+        two = [seconds(p) for p in both]
+        print(f'  serial {alone:.2f} s; on the threads {threads:.2f} s ({alone / threads:.2f} x); '
+              f'two serial ones in two processes at once {two[0]:.2f} and {two[1]:.2f} s '
+              f'({2 * alone / max(two):.2f} x the work per second)')
+
+
+if __name__ == '__main__':
+    main()
