@@ -30,11 +30,12 @@ PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')
          ('detection', ('~', 'detectAndCompute')),
          ('RANSAC', ('hypotheses.py', 'ransac_rigid'))]
 
-# one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; prints wall s
+# one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; profile: the
+# file cProfile writes to ('' for none); prints the wall time in s
 ONE = '''
-import glob, sys, time
+import cProfile, glob, sys, time
 sys.path.insert(0, {root!r})
-serial = {serial!r}
+serial, profile = {serial!r}, {profile!r}
 import cv2
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -48,18 +49,18 @@ if serial:
     cv2.setNumThreads(1)
     estimator.ThreadPoolExecutor = search.ThreadPoolExecutor = Loop
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
+settings = EstimationSettings()
 wall = time.perf_counter()
-estimator.estimate(grids, EstimationSettings())
+if profile:
+    cProfile.run('estimator.estimate(grids, settings)', profile)
+else:
+    estimator.estimate(grids, settings)
 print(time.perf_counter() - wall)
 '''
 
 
 def run(maps: Path, serial: bool, profile: str = '') -> subprocess.Popen:
-    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial)
-    if profile:
-        code = code.replace('estimator.estimate(grids, EstimationSettings())',
-                            f'import cProfile; cProfile.run("estimator.estimate(grids, EstimationSettings())", '
-                            f'{profile!r})')
+    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile)
     return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
 
 

@@ -62,5 +62,4 @@ def difference(a: np.ndarray, b: np.ndarray, at: np.ndarray) -> Tuple[float, flo
     rot = abs(math.atan2(a[1, 0] * b[0, 0] - a[0, 0] * b[1, 0], a[0, 0] * b[0, 0] + a[1, 0] * b[1, 0]))
     if not len(at):
         return rot, 0.0
-    gap = a - b
-    return rot, float(np.hypot(*(np.asarray(at, float) @ gap[:2, :2].T + gap[:2, 2]).T).max())
+    return rot, float(np.hypot(*apply(a - b, at).T).max())   # a's points less b's: (a - b) applied to them

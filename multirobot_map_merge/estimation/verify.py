@@ -201,28 +201,20 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
     return result
 
 
-# weights of the 3x3 chamfer metric of OpenCV's distanceTransform (DIST_L2, mask 3): an edge step, a diagonal one
-CHAMFER_EDGE, CHAMFER_DIAGONAL = 0.955, 1.3693
-
-
 @functools.lru_cache(maxsize=8)
 def chamfer_disc(radius: float) -> np.ndarray:
-    """The offsets within `radius` in the 3x3 chamfer metric, as a dilation kernel."""
-    r = int(radius // CHAMFER_EDGE) + 1
-    dist = np.full((2 * r + 1,) * 2, np.inf)
-    dist[r, r] = 0.0
-    for _ in range(2 * r):   # shortest paths of edge and diagonal steps, relaxed until they settle
-        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            step = CHAMFER_DIAGONAL if dx and dy else CHAMFER_EDGE
-            for sy, sx in ((dy, dx), (-dy, -dx)):
-                moved = np.roll(dist, (sy, sx), axis=(0, 1)) + step
-                dist = np.minimum(dist, moved)
-    return (dist <= radius).astype(np.uint8)
+    """The offsets within `radius` in the metric of distanceTransform's DIST_L2 with a 3x3 mask (a chamfer metric:
+    steps of 0.955 along an axis, 1.3693 diagonally), as a dilation kernel: that transform of one pixel, thresholded."""
+    r = int(math.ceil(2 * radius)) + 1   # no step is shorter than half a pixel
+    point = np.full((2 * r + 1,) * 2, 255, np.uint8)
+    point[r, r] = 0
+    return (cv2.distanceTransform(point, cv2.DIST_L2, 3) <= radius).astype(np.uint8)
 
 
 def near_walls(walls: np.ndarray, radius: float) -> np.ndarray:
     """Where a pixel of the bool mask `walls` lies within `radius`: the same as thresholding distanceTransform's
-    DIST_L2 (3x3 mask) field, by a dilation four times cheaper (verify runs thousands of times)."""
+    DIST_L2 (3x3 mask) field, by a dilation (an eighth of the time in the verification's profile; verify runs
+    thousands of times per estimation)."""
     return cv2.dilate(walls.view(np.uint8), chamfer_disc(float(radius))).view(bool)
 
 
