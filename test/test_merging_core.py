@@ -409,6 +409,26 @@ def test_polish_returns_nudged_placements_towards_the_true_one(repo_root):
         (before, after)
 
 
+def test_polish_search_reaches_the_lowest_step_and_costs_each_step_once():
+    """The pattern search (polish.descend) on a bowl of seeded centres: it ends within its last step of the lowest
+    point, and no step (rotation, x, y) is costed twice (a step back to where it came from is remembered)."""
+    from multirobot_map_merge.estimation.polish import LAST_STEP, descend
+    seed = 17
+    print('seed', seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        centre = rng.uniform([-0.02, -3.0, -3.0], [0.02, 3.0, 3.0])
+        costed = []
+
+        def cost(p):
+            costed.append(tuple(p))
+            return float(((p - centre) * np.array([100.0, 1.0, 1.0])) @ (p - centre))
+
+        found = descend(cost, lambda q: q.copy(), max_moves=400)
+        assert np.all(np.abs(found[1:] - centre[1:]) <= 2 * LAST_STEP), (found, centre)
+        assert len(costed) == len(set(costed)), 'a step was costed twice'
+
+
 def test_small_thin_walled_overlap_is_placed_precisely(repo_root):
     """A pair from the live demo that ICP alone places a degree and 5 cells off; the polish brings it within the
     demo test's bar (1 degree, 3 cells)."""

@@ -17,7 +17,7 @@ matcher's verification.
 from __future__ import annotations
 
 import math
-from typing import Callable, Sequence, Tuple
+from typing import Callable, Dict, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -109,7 +109,16 @@ def descend(cost: Callable[[np.ndarray], float], moved: Callable[[np.ndarray], n
             first_steps: Tuple[float, float] = FIRST_STEPS, max_moves: int = MAX_MOVES) -> np.ndarray:
     """Pattern search from the zero step: the step (rotation, x, y) with the lowest cost, starting with
     `first_steps` (radians, pixels) and halving them until the translation step is below LAST_STEP."""
-    best = cost(moved(np.zeros(3)))
+    known: Dict[tuple, float] = {}
+
+    def cost_at(q: np.ndarray) -> float:
+        # a step back to where the search came from is tried again after each move: a sixth of the evaluations
+        key = tuple(q)
+        if key not in known:
+            known[key] = cost(moved(q))
+        return known[key]
+
+    best = cost_at(np.zeros(3))
     p = np.zeros(3)
     if not math.isfinite(best):
         return p
@@ -119,7 +128,7 @@ def descend(cost: Callable[[np.ndarray], float], moved: Callable[[np.ndarray], n
             for sign in (1.0, -1.0):
                 q = p.copy()
                 q[k] += sign * steps[k]
-                c = cost(moved(q))
+                c = cost_at(q)
                 if c < best - 1e-9:
                     best, p = c, q
                     break
