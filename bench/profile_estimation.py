@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """Where one estimation's time goes, and what its two threads gain (not a test: it prints figures).
 
-    scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain]
+    scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases]
 
 MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
 estimation runs serially (its thread pools replaced by loops, OpenCV on one thread) under cProfile, and the time of
 its parts is printed: ICP, the verification of candidates, descriptor distances, the correlation search, the
 polish, detection, RANSAC. With --threads-gain it also prints the wall time of the serial estimation alone, of the
 estimation on its threads (the default settings), and of two serial estimations in two processes at once: what
-the second core gives to threads (which hold the GIL in turn) and to processes.
+the second core gives to threads (which hold the GIL in turn) and to processes. With --phases it also prints where
+the wall time of an estimation on its threads goes, as its main thread sees it: waiting for the batches of matches
+that run on the threads, and the work it does alone (group matches, single-grid searches, the rest).
 """
 from __future__ import annotations
 
@@ -29,6 +31,15 @@ PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')
          ('correlation search', ('search.py', 'correlate_candidates')), ('polish', ('polish.py', 'polish')),
          ('detection', ('~', 'detectAndCompute')),
          ('RANSAC', ('hypotheses.py', 'ransac_rigid'))]
+
+# the main thread's phases of an estimation on its threads: (label, (file suffix, function), callers (file suffix,
+# function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the pool is the time
+# spent waiting for its results
+PHASES = [('batches of matches on the threads', ('_base.py', 'result_iterator'),
+           [('growth.py', 'grow'), ('stronger.py', 'of'), ('growth.py', 'confirm_searches')]),
+          ('preparing the grids', ('_base.py', 'result_iterator'), [('estimator.py', '_estimate')]),
+          ('group matches (searches included)', ('growth.py', '_match_groups'), None),
+          ('single-grid searches', ('growth.py', '_search'), None)]
 
 # one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; profile: the
 # file cProfile writes to ('' for none); prints the wall time in s
@@ -75,6 +86,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
     ap.add_argument('--threads-gain', action='store_true', help='also time threads and two processes')
+    ap.add_argument('--phases', action='store_true', help='also split an estimation on its threads into phases')
     args = ap.parse_args()
     if not glob.glob(str(args.maps / 'map_*.yaml')):
         sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
@@ -86,6 +98,24 @@ def main() -> None:
         spent = sum(v[3] for (path, _, func), v in stats.items()
                     if path.endswith(suffix) and (func == name or suffix == '~' and name in func))
         print(f'  {label:22s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
+    if args.phases:
+        total = seconds(run(args.maps, False, str(out)))
+        stats = pstats.Stats(str(out)).stats
+        print(f'{args.maps.name}: on its threads {total:.2f} s (its main thread under cProfile)')
+        shown = 0.0
+        for label, (suffix, name), callers in PHASES:
+            spent = 0.0
+            for (path, _, func), v in stats.items():
+                if not (path.endswith(suffix) and func == name):
+                    continue
+                if callers is None:
+                    spent += v[3]
+                else:
+                    spent += sum(c[3] for (cpath, _, cfunc), c in v[4].items()
+                                 if any(cpath.endswith(cs) and cfunc == cn for cs, cn in callers))
+            shown += spent
+            print(f'  {label:34s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
+        print(f'  {"the rest, on the main thread":34s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
     if args.threads_gain:
         alone = seconds(run(args.maps, True))
         threads = seconds(run(args.maps, False))
