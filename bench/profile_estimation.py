@@ -82,6 +82,21 @@ def seconds(process: subprocess.Popen) -> float:
     return float(out.split()[-1])
 
 
+def cumulative(stats: dict, suffix: str, name: str, callers=None) -> float:
+    """Cumulative seconds of the functions named `name` in files ending in `suffix` (OpenCV's, '~': those whose name
+    holds `name`); with `callers` ((file suffix, function), ...), only their calls from those."""
+    spent = 0.0
+    for (path, _, func), v in stats.items():
+        if not (path.endswith(suffix) and (func == name or suffix == '~' and name in func)):
+            continue
+        if callers is None:
+            spent += v[3]
+        else:
+            spent += sum(c[3] for (cpath, _, cfunc), c in v[4].items()
+                         if any(cpath.endswith(cs) and cfunc == cn for cs, cn in callers))
+    return spent
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
@@ -95,8 +110,7 @@ def main() -> None:
     stats = pstats.Stats(str(out)).stats
     print(f'{args.maps.name}: serial estimation under cProfile {total:.2f} s')
     for label, (suffix, name) in PARTS:
-        spent = sum(v[3] for (path, _, func), v in stats.items()
-                    if path.endswith(suffix) and (func == name or suffix == '~' and name in func))
+        spent = cumulative(stats, suffix, name)
         print(f'  {label:22s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
     if args.phases:
         total = seconds(run(args.maps, False, str(out)))
@@ -104,15 +118,7 @@ def main() -> None:
         print(f'{args.maps.name}: on its threads {total:.2f} s (its main thread under cProfile)')
         shown = 0.0
         for label, (suffix, name), callers in PHASES:
-            spent = 0.0
-            for (path, _, func), v in stats.items():
-                if not (path.endswith(suffix) and func == name):
-                    continue
-                if callers is None:
-                    spent += v[3]
-                else:
-                    spent += sum(c[3] for (cpath, _, cfunc), c in v[4].items()
-                                 if any(cpath.endswith(cs) and cfunc == cn for cs, cn in callers))
+            spent = cumulative(stats, suffix, name, callers)
             shown += spent
             print(f'  {label:34s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
         print(f'  {"the rest, on the main thread":34s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
