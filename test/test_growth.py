@@ -91,12 +91,12 @@ def test_pooled_keypoints_count_a_corner_seen_twice_once(repo_root):
     grids, _ = _sample(repo_root, 'three_robots')
     p = prepare(grids[0], 0.05, 'akaze')
     own = map_keypoints(p)
-    alone, _ = pooled_keypoints([(*own, np.eye(3))], p.px_to_map, p.work.shape)
-    twice, descriptors = pooled_keypoints([(*own, np.eye(3)), (*own, np.eye(3))], p.px_to_map, p.work.shape)
+    alone, _, _ = pooled_keypoints([(*own, np.eye(3))], p.px_to_map, p.work.shape)
+    twice, descriptors, _ = pooled_keypoints([(*own, np.eye(3)), (*own, np.eye(3))], p.px_to_map, p.work.shape)
     assert len(alone) == len(p.keypoints) and len(twice) == len(alone) and len(descriptors) == len(twice)
     # the same map placed 5 m further along x brings those of its keypoints into the union that land in it
     shift_px = 5.0 / p.resolution
-    shifted, _ = pooled_keypoints([(*own, tf.translation(5.0, 0.0))], p.px_to_map, p.work.shape)
+    shifted, _, _ = pooled_keypoints([(*own, tf.translation(5.0, 0.0))], p.px_to_map, p.work.shape)
     expected = alone[alone[:, 0] + shift_px < p.work.shape[1]] + (shift_px, 0.0)
     assert 0 < len(shifted) < len(alone)
     assert np.allclose(np.sort(shifted[:, 0]), np.sort(expected[:, 0]), atol=1e-6)

@@ -139,16 +139,16 @@ def test_binary_descriptors_padded_to_whole_words_match_as_before(shared_dir):
     """AKAZE's 61-byte descriptors come zero-padded to 64 bytes (OpenCV counts bits 8 bytes at a time): the
     padding adds nothing to a Hamming distance, so the ratio test keeps the same pairs."""
     from multirobot_map_merge.estimation.features import detect, prepare
-    from multirobot_map_merge.estimation.hypotheses import _ratio_tested
+    from multirobot_map_merge.estimation.hypotheses import _ratio_tested, _two_nearest
     grids, _ = scenario(shared_dir, 'pair_large_depot_1')
     described = [detect(prepare(g, 0.05, 'akaze', lazy=True).work, 'akaze') for g in grids[:2]]
     (_, a), (_, b) = described
     assert a.shape[1] == b.shape[1] == 64 and len(a) > 100 and len(b) > 100
     assert not a[:, 61:].any() and not b[:, 61:].any()
-    padded = _ratio_tested(a, b, 0.8)
+    padded = _ratio_tested(*_two_nearest(a, b), 0.8)
     assert len(padded) > 10
-    assert np.array_equal(padded, _ratio_tested(np.ascontiguousarray(a[:, :61]), np.ascontiguousarray(b[:, :61]),
-                                                0.8))
+    assert np.array_equal(padded, _ratio_tested(*_two_nearest(np.ascontiguousarray(a[:, :61]),
+                                                              np.ascontiguousarray(b[:, :61])), 0.8))
 
 
 def test_merge_maps_cli_on_sample_maps(repo_root, tmp_path):

@@ -4,6 +4,7 @@ The stages, in the order a map goes through them (a stage's settings are declare
 composes them into the one EstimationSettings):
   features.py    prepare a grid: crop, resample to the working resolution, walls, distance fields, keypoints
   hypotheses.py  candidate screen: descriptor matches, rigid RANSAC hypotheses, a cheap wall-agreement screen
+                 (neighbours.py keeps each keypoint's nearest descriptors among each map's for one estimation)
   search.py      correlation search: candidates where descriptors found none (small or featureless overlaps)
   refine.py      refinement: ICP on walls; polish.py then settles each plausible placement in its best minimum
   verify.py      verification and the acceptance rules (agreement, overlap, support, contradictions, precision.py)

@@ -64,6 +64,8 @@ class PreparedGrid:
     wall_normals: np.ndarray = None  # (M, 2) free_side at each wall pixel
     known_depth: np.ndarray = None   # (H, W) float32 distance (pixels) of every pixel to the nearest unknown one
     feature: Optional[str] = None    # the detector describe() runs while keypoints is None
+    # a union's: (a member's descriptors, the rows of it pooled here) in the order of `descriptors` (neighbours.py)
+    descriptor_parts: Optional[list] = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
     derived: dict = field(default_factory=dict, repr=False, compare=False)   # what later stages derive, kept
 
@@ -258,10 +260,11 @@ def pooled_keypoints(parts, px_to_map: np.ndarray, shape, radius: float = 3.0):
     `parts` are (keypoints in the grid's map frame (metres), descriptors, metric transform of that map frame into
     the union's). Each part's keypoints are brought into the union's pixels (rotation-invariant descriptors stay
     valid); a keypoint within `radius` pixels of one already taken is the same corner seen again and left out, so
-    that the ratio test still finds one nearest neighbour per corner. No detection runs on the union."""
+    that the ratio test still finds one nearest neighbour per corner. No detection runs on the union. Returns the
+    keypoints, their descriptors, and (each part's descriptors, the rows of it taken) in that order."""
     h, w = shape
     taken = np.zeros((h // int(radius) + 1, w // int(radius) + 1), bool)
-    points, descriptors = [], []
+    points, descriptors, taken_rows = [], [], []
     to_px = np.linalg.inv(px_to_map)
     for keypoints, part_descriptors, t in parts:
         if part_descriptors is None or not len(keypoints):
@@ -275,6 +278,7 @@ def pooled_keypoints(parts, px_to_map: np.ndarray, shape, radius: float = 3.0):
         idx = np.flatnonzero(inside)[fresh]
         points.append(pts[idx])
         descriptors.append(part_descriptors[idx])
+        taken_rows.append((part_descriptors, idx))
     if not points:
-        return np.zeros((0, 2)), None
-    return np.vstack(points), np.vstack(descriptors)
+        return np.zeros((0, 2)), None, []
+    return np.vstack(points), np.vstack(descriptors), taken_rows

@@ -26,6 +26,7 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
+from .neighbours import NeighbourCache
 from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import contradicted_members
@@ -128,7 +129,8 @@ class Grower:
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
         self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
-        self.pair_evidence = PairEvidence(prepared, settings, pool)   # stronger.py
+        self.neighbours = NeighbourCache()   # descriptor distances of this estimation's matches
+        self.pair_evidence = PairEvidence(prepared, settings, pool, self.neighbours)   # stronger.py
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -169,7 +171,7 @@ class Grower:
         """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
         one is matched as a pair."""
         return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
-                          onto_union=len(group.members) > 1, descriptors=not search)
+                          onto_union=len(group.members) > 1, descriptors=not search, neighbours=self.neighbours)
 
     def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
@@ -235,7 +237,7 @@ class Grower:
         """Whether the putative descriptor matches of grid k with grid m hold a rigid model with enough inliers."""
         if (k, m) not in self.agreeing:
             pk, pm = self.prepared[k], self.prepared[m]
-            pairs = putative_matches(pk, pm, self.s.ratio, False)
+            pairs = putative_matches(pk, pm, self.s.ratio, False, self.neighbours)
             agree = False
             if len(pairs) >= self.s.min_inliers:
                 rng = np.random.default_rng(self.s.seed + 7919 * k + m)
@@ -479,7 +481,8 @@ class Grower:
             # placement or a rival that makes the match ambiguous
             started = time.perf_counter()
             m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
-                           onto_union=len(big.members) > 1, between_groups=True, search_spent=spent)
+                           onto_union=len(big.members) > 1, between_groups=True, search_spent=spent,
+                           neighbours=self.neighbours)
             self.search_seconds += time.perf_counter() - started
             self.group_matches[(id(small), id(big))] = (small, big, state, m)
         if m.reason == SEARCH_POSTPONED:

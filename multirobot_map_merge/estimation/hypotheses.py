@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import transforms as tf
 from .features import PreparedGrid
+from .neighbours import NeighbourCache, parts_of, two_nearest
 from .validation import must_be_positive
 
 if TYPE_CHECKING:
@@ -35,29 +36,42 @@ class HypothesisSettings:
         must_be_positive(self, 'ratio', 'ransac_threshold', 'ransac_iterations', 'max_hypotheses')
 
 
-def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True) -> np.ndarray:
+def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways: bool = True,
+                     neighbours: Optional[NeighbourCache] = None) -> np.ndarray:
     """(K, 2) index pairs (keypoint of i, keypoint of j) passing the ratio test in either direction (or only from
-    i to j: j is a union, most of whose keypoints are nowhere in i), sorted."""
+    i to j: j is a union, most of whose keypoints are nowhere in i), sorted. With `neighbours`, binary descriptors'
+    nearest are found from those kept there (neighbours.py: the same pairs)."""
     pi.describe(), pj.describe()
     if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
-    found = [_ratio_tested(pi.descriptors, pj.descriptors, ratio)]
+    if neighbours is None or pi.descriptors.dtype != np.uint8:
+        def nearest(a: PreparedGrid, b: PreparedGrid):
+            return _two_nearest(a.descriptors, b.descriptors)
+    else:
+        def nearest(a: PreparedGrid, b: PreparedGrid):
+            return two_nearest(a.descriptors, parts_of(a.descriptors, a.descriptor_parts),
+                               b.descriptors, parts_of(b.descriptors, b.descriptor_parts), neighbours)
+    found = [_ratio_tested(*nearest(pi, pj), ratio)]
     if both_ways:
-        found.append(_ratio_tested(pj.descriptors, pi.descriptors, ratio)[:, ::-1])
+        found.append(_ratio_tested(*nearest(pj, pi), ratio)[:, ::-1])
     # each pair once, in the order of (i, j)
     keys = np.unique(np.concatenate([f[:, 0] * len(pj.descriptors) + f[:, 1] for f in found]))
     return np.stack(np.divmod(keys, len(pj.descriptors)), axis=1)
 
 
-def _ratio_tested(query: np.ndarray, train: np.ndarray, ratio: float) -> np.ndarray:
-    """(K, 2) pairs (query index, its nearest train index) whose nearest is clearly nearer than the second nearest.
-    cv2.batchDistance is what a BFMatcher's knnMatch runs, with arrays out instead of a Python object per match."""
+def _two_nearest(query: np.ndarray, train: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """(distances (N, 2), nearest index (N,)): cv2.batchDistance is what a BFMatcher's knnMatch runs, with arrays
+    out instead of a Python object per match."""
     norm = cv2.NORM_HAMMING if query.dtype == np.uint8 else cv2.NORM_L2
     distance, nearest = cv2.batchDistance(query, train, cv2.CV_32S if norm == cv2.NORM_HAMMING else cv2.CV_32F,
                                           normType=norm, K=2)
-    distance = distance.astype(np.float32)   # as a DMatch holds it
+    return distance.astype(np.float32), nearest[:, 0]   # distances as a DMatch holds them
+
+
+def _ratio_tested(distance: np.ndarray, nearest: np.ndarray, ratio: float) -> np.ndarray:
+    """(K, 2) pairs (query index, its nearest train index) whose nearest is clearly nearer than the second nearest."""
     keep = np.flatnonzero(distance[:, 0] < ratio * distance[:, 1].astype(np.float64))
-    return np.stack([keep, nearest[keep, 0].astype(np.int64)], axis=1)
+    return np.stack([keep, nearest[keep].astype(np.int64)], axis=1)
 
 
 def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int,

@@ -19,6 +19,7 @@ import numpy as np
 from .. import transforms as tf
 from .features import PreparedGrid, nonzero_2d
 from .hypotheses import hypotheses, putative_matches, quick_agreement
+from .neighbours import NeighbourCache
 from .polish import polish
 from .refine import icp
 from .search import correlate_candidates
@@ -169,7 +170,8 @@ def other_places(best: Placement, others: List[Placement], pi: PreparedGrid, s: 
 
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
                search: bool = True, onto_union: bool = False, descriptors: bool = True,
-               between_groups: bool = False, search_spent: bool = False) -> PairMatch:
+               between_groups: bool = False, search_spent: bool = False,
+               neighbours: Optional[NeighbourCache] = None) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
 
     With search=False, only descriptor matches propose placements (cheap); otherwise a correlation search adds
@@ -185,6 +187,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     postponed (SEARCH_POSTPONED), not judged on the descriptors' candidates alone: the search's candidates can
     outrank them or make them ambiguous, so a match accepted without them could be one that the same maps refuse,
     or place elsewhere, when there is time to search.
+
+    `neighbours` keeps descriptor distances for the matches of one estimation (neighbours.py).
     """
     result = PairMatch(i, j)
     rng = np.random.default_rng(s.seed + 7919 * i + j)
@@ -212,7 +216,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         return [c for c in (refine(m, screen) for m in models) if c is not None]
 
     light = s.replace(icp_max_points=LIGHT_ICP_POINTS)
-    pairs = putative_matches(pi, pj, s.ratio, not onto_union) if descriptors else np.zeros((0, 2), np.int64)
+    pairs = putative_matches(pi, pj, s.ratio, not onto_union, neighbours) if descriptors else np.zeros((0, 2), np.int64)
     result.descriptor_matches = len(pairs)
     p, q = (pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]) if len(pairs) else (np.zeros((0, 2)),) * 2
 

@@ -20,6 +20,7 @@ from concurrent.futures import Executor
 from typing import Callable, Dict, Iterable, Optional, Sequence, Tuple
 
 from .features import PreparedGrid
+from .neighbours import NeighbourCache
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
 
@@ -31,8 +32,9 @@ FEW_MEMBERS = 3           # a weak match onto this many grids or fewer is checke
 class PairEvidence:
     """Descriptor matches of pairs of grids, each computed once per estimation (in parallel on `pool`)."""
 
-    def __init__(self, prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSettings, pool: Executor):
-        self.prepared, self.s, self.pool = prepared, settings, pool
+    def __init__(self, prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSettings, pool: Executor,
+                 neighbours: Optional[NeighbourCache] = None):
+        self.prepared, self.s, self.pool, self.neighbours = prepared, settings, pool, neighbours
         self._matches: Dict[Tuple[int, int], PairMatch] = {}
 
     def put(self, m: PairMatch) -> None:
@@ -44,7 +46,8 @@ class PairEvidence:
         for those matched already)."""
         others = list(others)
         todo = [x for x in others if (k, x) not in self._matches] if compute else []
-        for m in self.pool.map(lambda x: match_pair(k, x, self.prepared[k], self.prepared[x], self.s, search=False),
+        for m in self.pool.map(lambda x: match_pair(k, x, self.prepared[k], self.prepared[x], self.s, search=False,
+                                                  neighbours=self.neighbours),
                                todo):
             self._matches[(k, m.j)] = m
         return {x: self._matches[(k, x)] for x in others if (k, x) in self._matches}

@@ -149,7 +149,8 @@ class UnionMap:
             union = compose([self.grids[k] for k in order], [self.members[k] for k in order], self.resolution)
             self._prepared = prepare(union, self.resolution, None) if union is not None else None
             if self._prepared is not None:
-                self._prepared.keypoints, self._prepared.descriptors = pooled_keypoints(
+                (self._prepared.keypoints, self._prepared.descriptors,
+                 self._prepared.descriptor_parts) = pooled_keypoints(
                     [(*self.keypoints_of(k, self.parts[k]), self.members[k]) for k in order],
                     self._prepared.px_to_map, self._prepared.work.shape)
         self._prepared_version = self.version
