@@ -79,3 +79,43 @@ def test_a_map_whose_match_found_an_alias_is_judged_at_its_other_places():
     for m in refused.values():
         m.other_places_m = [np.eye(3)]
     assert single_out() == [0]
+
+
+class _Loop:
+    def map(self, f, *its):
+        return [f(*a) for a in zip(*its)]
+
+
+def _two_groups(b_transform: np.ndarray):
+    """Group A: the broken map 0 with maps 1 and 2; group B: three maps of the same hall that saw the floor where
+    map 0's turned part put a wall, placed by `b_transform` (metric: B's frame -> A's)."""
+    from multirobot_map_merge.estimation.growth import Grower
+    world = building()
+    grids, prepared, _, _, _ = scene()
+    grids.append(seen(world, 80, 260))
+    prepared.append(prepare(grids[-1], RES, None))
+    grower = Grower(grids, prepared, RES, EstimationSettings(), _Loop(), None, None)
+    a, b = grower.group(0), grower.group(3)
+    for k in (1, 2):
+        a.union.add(k, grids[k], prepared[k], np.eye(3))
+    for k in (4, 5):
+        b.union.add(k, grids[k], prepared[k], np.eye(3))
+    m = PairMatch(3, 0, reason='agreement 0.85 < 0.91',
+                  best=Placement(np.eye(3), support=800, overlap_m2=60.0, agreement=0.85))
+    m.transform_m = b_transform
+    return grower, a, b, m
+
+
+def test_a_broken_member_that_keeps_two_groups_apart_leaves_its_group():
+    """The maps of group B, placed where the refused match of the two unions found them, agree with A's members but
+    contradict its broken one alone: it leaves A (and this estimation), and the two unions agree without it."""
+    grower, a, b, m = _two_groups(np.eye(3))
+    assert grower.evict_at_join(b, a, m)
+    assert sorted(a.members) == [1, 2] and a.seed in (1, 2) and 0 in grower.evicted and sorted(b.members) == [3, 4, 5]
+
+
+def test_no_member_leaves_where_the_refused_match_placed_the_other_group_at_an_alias():
+    """3 m along the hall, B's maps contradict several of A's members: no member is singled out."""
+    grower, a, b, m = _two_groups(np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+    assert not grower.evict_at_join(b, a, m)
+    assert sorted(a.members) == [0, 1, 2] and not grower.evicted
