@@ -28,10 +28,11 @@ from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
 from .confirmation import hold_new, static_for, with_held
-from .features import FeatureCache, content_key
+from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
+from .relax import FINAL_MAX_MOVE_M, relax
 from .settings import EstimationSettings
 from .tracking import track
 from .union import known_corners
@@ -146,6 +147,21 @@ def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group
             grower.grow(group, unplaced, search=False)
         groups.append(group)
     return groups
+
+
+def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
+                s: EstimationSettings) -> None:
+    """Refine the group's placements together, its seed fixed (relax.py): each map was placed onto the union of
+    those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
+    members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
+    seeds 0-2: 11 maps 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025 -> 0.013 degrees).
+    The placements stay when the walls fit no better or a map would move more than FINAL_MAX_MOVE_M."""
+    if len(group.members) < 3:
+        return   # a pair is refined together by its own match
+    moved = relax(dict(group.members), group.seed, grids, prepared, dict(group.union.footprints), s.min_overlap_m2,
+                  s.seed, FINAL_MAX_MOVE_M)
+    if moved is not None:
+        group.move(moved)
 
 
 def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache] = None,
@@ -285,6 +301,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.evict and grower.evict_contradicted(
                 chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
             chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+        if settings.relax_final and not tracked:
+            # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
+            relax_group(chosen, usable, prepared, settings)
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

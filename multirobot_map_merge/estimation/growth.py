@@ -70,6 +70,14 @@ class Group:
         self.links.update(other.links)
         self.links[other.seed] = self.paired(m, other.seed)
 
+    def move(self, placements: Dict[int, np.ndarray]) -> None:
+        """The members placed anew (metric: map -> the group's frame; a refinement of them together), their links
+        restated."""
+        for k, t in placements.items():
+            self.union.add(k, self.union.grids[k], self.union.parts[k], t)
+        for k, link in self.links.items():
+            self.links[k] = dataclasses.replace(link, transform_m=tf.inverse(self.members[link.j]) @ self.members[k])
+
     def leave(self, k: int) -> None:
         """Member k leaves; the members reported as paired with it are paired anew with the one they overlap most."""
         self.union.remove(k)

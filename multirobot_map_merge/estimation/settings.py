@@ -25,6 +25,9 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
     # a member that the maps left out single out leaves the merge (eviction.py): for one estimation of final maps
     # (merge_maps); the node turns it off (see ros/params.py)
     evict: bool = True
+    # the placements of an estimation afresh refined together at its end (relax.py, FINAL_MAX_MOVE_M): for one
+    # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead
+    relax_final: bool = True
     seed: int = 0
 
     def validate(self) -> None:
