@@ -2,9 +2,10 @@
 (a map broken by a SLAM failure, placed by one of its parts), is singled out; one map's word is not enough."""
 import numpy as np
 
+from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation.eviction import contradicted_members, judge_members
 from multirobot_map_merge.estimation.features import prepare
-from multirobot_map_merge.estimation.pair import PairMatch
+from multirobot_map_merge.estimation.pair import PairMatch, match_pair
 from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.estimation.union import footprint
 from multirobot_map_merge.estimation.verify import Placement
@@ -119,3 +120,43 @@ def test_no_member_leaves_where_the_refused_match_placed_the_other_group_at_an_a
     grower, a, b, m = _two_groups(np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     assert not grower.evict_at_join(b, a, m)
     assert sorted(a.members) == [0, 1, 2] and not grower.evicted
+
+
+def _merge_of(grids, members):
+    from multirobot_map_merge.estimation.growth import Grower
+    prepared = [prepare(g, RES, 'akaze') for g in grids]
+    grower = Grower(grids, prepared, RES, EstimationSettings(), _Loop(), None, None)
+    group = grower.group(members[0])
+    for k in members[1:]:
+        group.union.add(k, grids[k], prepared[k], np.eye(3))
+    return grower, group
+
+
+def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for_them():
+    """search_left_out: a map left out that the merge's members agree with over most of its area joins; the broken
+    map (a wall across the floor the members saw free) does not, nor a right map that shares less than half its area
+    with the merge (the merge cannot vouch for the rest)."""
+    world = building()
+    for r0, r1, c in ((0, 40, 40), (160, 200, 70), (0, 50, 150), (150, 200, 180), (0, 30, 260), (170, 200, 280)):
+        world[r0:r1, c] = 100   # more wall stubs: the hall is no corridor to slide along
+    broken = seen(world, 0, 300)
+    broken.data[40:160, 160] = 100
+    grids = [broken, seen(world, 0, 170), seen(world, 40, 200), seen(world, 0, 120), seen(world, 20, 190),
+             seen(world, 110, 300)]
+    grower, group = _merge_of(grids, [1, 2, 3])
+    assert grower.search_left_out(group) == 1
+    assert sorted(group.members) == [1, 2, 3, 4]
+    rot, shift = tf.difference(group.members[4], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+    assert rot < 0.01 and shift < 0.1
+    # the last one's search placed it right, and only its share kept it out
+    grower, group = _merge_of(grids, [1, 2, 3, 4])
+    m = match_pair(5, 1, grower.prepared[5], group.union.prepared(), grower.s, onto_union=True, descriptors=False)
+    assert m.accepted and np.allclose(m.transform_m, np.eye(3), atol=0.05)
+    assert grower.search_left_out(group) == 0
+    # a map that only one member overlaps has only that member's word for its place: it waits
+    grids += [seen(world, 200, 300), seen(world, 150, 300), seen(world, 0, 100)]
+    grower, group = _merge_of(grids, [1, 6, 7])
+    m = match_pair(8, 1, grower.prepared[8], group.union.prepared(), grower.s, onto_union=True, descriptors=False)
+    assert m.accepted and np.allclose(m.transform_m, np.eye(3), atol=0.05)
+    grower.search_left_out(group)
+    assert 8 not in group.members and 4 in group.members

@@ -301,6 +301,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.evict and grower.evict_contradicted(
                 chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
             chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+        if settings.search_left_out and not tracked:
+            grower.search_left_out(chosen)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings)

@@ -22,7 +22,7 @@ from .. import transforms as tf
 from .features import PreparedGrid
 from .pair import PairMatch
 from .union import overlap_area
-from .verify import plausible, verify
+from .verify import plausible, too_contradicted, verify
 
 
 if TYPE_CHECKING:
@@ -36,10 +36,11 @@ MANY_AGREEING = 3  # unless that many members agree with the one map that does
 
 
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
-                  box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings):
+                  box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings, strict: bool = True):
     """(agreeing, contradicting): the members that grid k, placed by `placed_k` (metric: its map -> the group's
     frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it
-    (judged until two contradict it)."""
+    (judged until two contradict it). Not `strict`: only a pair that agrees too little or contradicts inside both
+    maps' views contradicts (not one whose common walls are too few to accept it as a pair)."""
     agreeing, contradicting = [], []
     pk = prepared[k]
     for j, t in members.items():
@@ -50,7 +51,10 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
         c = verify(pk, pj, model, s)
         if c.overlap_m2 < s.min_overlap_m2 or c.support + c.conflicts < s.min_support:
             continue
-        (agreeing if plausible(c, s) else contradicting).append(j)
+        if plausible(c, s):
+            agreeing.append(j)
+        elif strict or c.agreement < s.min_agreement or too_contradicted(c, s):
+            contradicting.append(j)
         if len(contradicting) > 1:
             break   # it singles out no member (a broken map contradicts several): the rest need not be judged
     return agreeing, contradicting

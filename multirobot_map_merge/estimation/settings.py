@@ -28,6 +28,9 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
     # the placements of an estimation afresh refined together at its end (relax.py, FINAL_MAX_MOVE_M): for one
     # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead
     relax_final: bool = True
+    # the grids left out of an estimation afresh searched once more onto the merge (growth.search_left_out): for one
+    # estimation of final maps; in the node tracking checks every placement again in the estimations after
+    search_left_out: bool = True
     seed: int = 0
 
     def validate(self) -> None:

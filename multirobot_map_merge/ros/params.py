@@ -103,10 +103,12 @@ class MapMergeParams:
         # no eviction while maps grow: on partial maps it took right members out and moved the reference from one
         # estimation to the next (bench_node, 30 robots revealed: robots placed 1-2 degrees off in 10 of 25
         # statuses, against 7 of 34 with 3 at most without it); tracking drops a contradicted placement instead, and
-        # refines the kept placements together (so no relaxation at the end of each estimation either)
+        # refines the kept placements together (so no relaxation or search of the maps left out at the end of each
+        # estimation either)
         return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence,
                                   search_budget_s=SEARCH_BUDGET, free_threshold=self.free_threshold,
-                                  occupied_threshold=self.occupied_threshold, evict=False, relax_final=False)
+                                  occupied_threshold=self.occupied_threshold, evict=False, relax_final=False,
+                                  search_left_out=False)
 
 
 _ANNOT = {'float': float, 'bool': bool, 'str': str, 'int': int}
