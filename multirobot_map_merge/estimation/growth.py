@@ -523,8 +523,9 @@ class Grower:
         return plausible(c, self.s) and not refusal(c, unions[0], unions[1], self.s, onto_union=True)
 
     def search_left_out(self, group: Group) -> int:
-        """Search every grid left out of the merge (`group`; not those evicted) once more onto its union, those not
-        searched against it since it last grew by a quarter (SEARCH_GROWTH), and join those whose placement passes
+        """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
+        union (a refused match found where they overlap it; not those searched since it last grew by a quarter,
+        SEARCH_GROWTH), and join those whose placement passes
         the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's known area with the merge, agrees with
         MIN_AGREEING members or more (as pairs) and contradicts none. Returns how many joined.
 
@@ -541,6 +542,8 @@ class Grower:
         for k, p in enumerate(self.prepared):
             if p is None or k in group.members or k in self.evicted:
                 continue
+            if not any(members <= group.members.keys() for members in self.found.get(k, ())):
+                continue   # no match found where it overlaps the merge: the growth searched it (_search)
             last = self.memory.searches.get((self.names[k], self.names[group.seed]))
             if last is not None and union.known_pixels < SEARCH_GROWTH * last[1]:
                 continue
