@@ -37,6 +37,12 @@ RESCUE_PLACES = 3       # distinct places polished when no candidate is plausibl
 RESCUE_SINGLE = 1       # places polished when a search of a single grid found no candidate that passes
 OTHER_PLACES = 3        # distinct places besides the best kept in metric form (PairMatch.other_places_m)
 SEARCH_POSTPONED = 'search postponed: the search budget of this estimation is spent'
+# a join of two groups is refused beside a distinct place where their unions overlap with this many times its
+# support and contradict (overlap_found): on the generated 36-map buildings (seeds 0-8) the hospital's wings of
+# identical rooms joined at 21-93 m2 beside such a place 4.4-22 times larger, right or wrong alike (false merges in 4
+# of 9 seeds, 8-10 maps each, half a turn or 28-53 m off), and in one seed a maze's groups joined a quarter turn off;
+# refused, no group joins wrong there, and 12-17 of hospital36's 27 maps are placed
+ELSEWHERE_SUPPORT = 4.0
 NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
 
@@ -179,7 +185,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     matched descriptors already and found nothing plausible). With `onto_union`, j is the union of a placed group
     (see refusal). A search is not made when the descriptors found where the maps overlap and they contradict
     there (a broken map: a search finds the same). With `between_groups` (i and j are the unions of two groups,
-    growth.py), it is. When a search found no candidate that passes, the best places are polished and judged again
+    growth.py), it is, and a join is refused beside a distinct place where the unions overlap far more and contradict
+    (ELSEWHERE_SUPPORT). When a search found no candidate that passes, the best places are polished and judged again
     (`rescued`): RESCUE_PLACES of them between groups (few matches), the best one after any other search (ICP slides
     a small overlap along a corridor: in a replayed demo run a robot was placed 10 sim s sooner).
 
@@ -287,6 +294,13 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     if not result.reason and rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
+    if not result.reason and between_groups:
+        # two unions that overlap far more elsewhere, where they contradict: a small join beside it is a guess
+        elsewhere = max((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s)
+                         and overlap_found(c, s, onto_union)), key=lambda c: c.support, default=None)
+        if elsewhere is not None and elsewhere.support >= ELSEWHERE_SUPPORT * best.support:
+            result.reason = (f'the unions overlap elsewhere: a place with support {elsewhere.support} (here '
+                             f'{best.support}) agrees {elsewhere.agreement:.2f} and contradicts')
     if not result.reason and result.confidence < s.confidence:
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
     result.accepted = not result.reason
