@@ -10,7 +10,8 @@ polish, detection, RANSAC. With --threads-gain it also prints the wall time of t
 estimation on its threads (the default settings), and of two serial estimations in two processes at once: what
 the second core gives to threads (which hold the GIL in turn) and to processes. With --phases it also prints where
 the wall time of an estimation on its threads goes, as its main thread sees it: waiting for the batches of matches
-that run on the threads, and the work it does alone (group matches, single-grid searches, the rest).
+that run on the threads, and the work it does alone (group matches, single-grid searches, the search of the maps left
+out and the relaxation at the end, the rest).
 """
 from __future__ import annotations
 
@@ -39,7 +40,9 @@ PHASES = [('batches of matches on the threads', ('_base.py', 'result_iterator'),
            [('growth.py', 'grow'), ('stronger.py', 'of'), ('growth.py', 'confirm_searches')]),
           ('preparing the grids', ('_base.py', 'result_iterator'), [('estimator.py', '_estimate')]),
           ('group matches (searches included)', ('growth.py', '_match_groups'), None),
-          ('single-grid searches', ('growth.py', '_search'), None)]
+          ('single-grid searches', ('growth.py', '_search'), None),
+          ('the maps left out searched again', ('growth.py', 'search_left_out'), None),
+          ('the final relaxation', ('estimator.py', 'relax_group'), None)]
 
 # one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; profile: the
 # file cProfile writes to ('' for none); prints the wall time in s
