@@ -525,9 +525,9 @@ class Grower:
     def search_left_out(self, group: Group) -> int:
         """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
         union (a refused match found where they overlap it; not those searched since it last grew by a quarter,
-        SEARCH_GROWTH), and join those whose placement passes
-        the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's known area with the merge, agrees with
-        MIN_AGREEING members or more (as pairs) and contradicts none. Returns how many joined.
+        SEARCH_GROWTH), and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
+        the grid's known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
+        none. Returns how many joined. The searches count against the search budget as the growth's do.
 
         The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
         broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
@@ -548,9 +548,11 @@ class Grower:
             if last is not None and union.known_pixels < SEARCH_GROWTH * last[1]:
                 continue
             todo.append(k)
+        started = time.perf_counter()
         matches = list(self.pool.map(lambda k: match_pair(k, group.seed, self.prepared[k], union, self.s,
                                                           onto_union=True, descriptors=False,
                                                           neighbours=self.neighbours), todo))
+        self.search_seconds += time.perf_counter() - started
         joining = []
         for m in matches:
             pk = self.prepared[m.i]

@@ -44,13 +44,12 @@ def putative_matches(pi: PreparedGrid, pj: PreparedGrid, ratio: float, both_ways
     pi.describe(), pj.describe()
     if pi.descriptors is None or pj.descriptors is None or len(pi.descriptors) < 2 or len(pj.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
-    if neighbours is None or pi.descriptors.dtype != np.uint8:
-        def nearest(a: PreparedGrid, b: PreparedGrid):
+    def nearest(a: PreparedGrid, b: PreparedGrid):
+        if neighbours is None or a.descriptors.dtype != np.uint8:
             return _two_nearest(a.descriptors, b.descriptors)
-    else:
-        def nearest(a: PreparedGrid, b: PreparedGrid):
-            return two_nearest(a.descriptors, parts_of(a.descriptors, a.descriptor_parts),
-                               b.descriptors, parts_of(b.descriptors, b.descriptor_parts), neighbours)
+        return two_nearest(a.descriptors, parts_of(a.descriptors, a.descriptor_parts),
+                           b.descriptors, parts_of(b.descriptors, b.descriptor_parts), neighbours)
+
     found = [_ratio_tested(*nearest(pi, pj), ratio)]
     if both_ways:
         found.append(_ratio_tested(*nearest(pj, pi), ratio)[:, ::-1])
