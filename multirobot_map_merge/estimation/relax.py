@@ -66,19 +66,25 @@ def _correspondences(src: Tuple[np.ndarray, np.ndarray], dst: PreparedGrid, mode
     points, sides = src
     moved = tf.apply(model, points)
     h, w = dst.work.shape
-    x, y = np.rint(moved).astype(np.int64).T
-    inside = np.flatnonzero((x >= 0) & (y >= 0) & (x < w) & (y < h))
-    wall = dst.nearest_wall[y[inside], x[inside]]
-    found = wall >= 0
-    inside, wall = inside[found], wall[found]
-    nn = dst.walls[wall]
-    close = ((nn - moved[inside]) ** 2).sum(axis=1) <= radius * radius
-    inside, wall, nn = inside[close], wall[close], nn[close]
-    normals = dst.wall_normals[wall]
+    xy = np.rint(moved).astype(np.int64)
+    x, y = xy[:, 0], xy[:, 1]
+    # flat `take`s, and a negative coordinate fails the bound as a huge unsigned one (as ICP: the relaxation pairs
+    # every two overlapping grids, 432 pairs of 30 maps, and this was most of its time)
+    inside = np.flatnonzero((x.view(np.uint64) < w) & (y.view(np.uint64) < h))
+    wall = dst.nearest_wall.reshape(-1).take(y.take(inside) * w + x.take(inside))
+    found = np.flatnonzero(wall >= 0)
+    inside, wall = inside.take(found), wall.take(found)
+    nn = dst.walls.take(wall, axis=0)
+    gap = nn - moved.take(inside, axis=0)
+    dx, dy = gap[:, 0], gap[:, 1]
+    close = np.flatnonzero(dx * dx + dy * dy <= radius * radius)
+    inside, wall, nn = inside.take(close), wall.take(close), nn.take(close, axis=0)
+    normals = dst.wall_normals.take(wall, axis=0)
     length = np.hypot(normals[:, 0], normals[:, 1])
     # a wall's two faces are not one wall; a wall pixel with no free side has no normal
-    keep = (length > 1e-3) & ~opposed(sides[inside] @ model[:2, :2].T, normals)
-    return moved[inside][keep], nn[keep], normals[keep] / length[keep, None]
+    keep = np.flatnonzero((length > 1e-3) & ~opposed(sides.take(inside, axis=0) @ model[:2, :2].T, normals))
+    inside, nn, normals = inside.take(keep), nn.take(keep, axis=0), normals.take(keep, axis=0)
+    return moved.take(inside, axis=0), nn, normals / length.take(keep)[:, None]
 
 
 def _weights(residuals: np.ndarray, frame: np.ndarray, radius: float) -> np.ndarray:
