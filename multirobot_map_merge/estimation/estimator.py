@@ -32,7 +32,7 @@ from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .relax import FINAL_MAX_MOVE_M, relax
+from .relax import FINAL, relax
 from .settings import EstimationSettings
 from .tracking import track
 from .union import known_corners
@@ -155,12 +155,12 @@ def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequenc
     those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
     members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
     seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025
-    -> 0.013 degrees). The placements stay when the walls fit no better or a map would move more than
-    FINAL_MAX_MOVE_M."""
+    -> 0.013 degrees). It goes further and longer than tracking's (relax.FINAL). The placements stay when the walls
+    fit no better or a map would move more than FINAL.max_move_m."""
     if len(group.members) < 3:
         return   # a pair is refined together by its own match
     moved = relax(dict(group.members), group.seed, grids, prepared, dict(group.union.footprints), s.min_overlap_m2,
-                  s.seed, FINAL_MAX_MOVE_M)
+                  s.seed, FINAL)
     if moved is not None:
         group.move(moved)
 

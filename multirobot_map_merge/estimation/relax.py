@@ -13,7 +13,7 @@ than MAX_MOVE_M at a grid's corners means something else is wrong (tracking's ch
 from __future__ import annotations
 
 import logging
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -34,12 +34,25 @@ ROBUST_SCALE = 0.125      # of the level's radius: residuals beyond it weigh les
 MIN_PAIRS = 10            # correspondences a pair needs (one way) to take part in an iteration: the pairs that
                           # bridge two groups overlap little, and without them the groups' own walls decided
 FIT_PX = 1.0              # pixels: a wall this close to a wall of the other grid of its pair fits
+MAX_PARTNERS = 6          # grids each grid is refined against, those it shares most walls with
 MAX_MOVE_M = 0.2          # metres at a grid's corners: a larger move is no refinement (with 0.5, six early demo
                           # maps under load had a right placement moved 0.37 m off, in 1 of 3 runs of the rostest)
-FINAL_MAX_MOVE_M = 0.3    # the same at the end of one estimation of final maps (estimator.relax_final): a group
-                          # joined a few tenths of a degree turned moves further (maze36 of the generated buildings,
-                          # seed 2: 0.26 m, which put four maps 3.3-3.9 cells off right)
-MAX_PARTNERS = 6          # grids each grid is refined against, those it shares most walls with
+
+
+class Limits(NamedTuple):
+    """How far and how long a relaxation goes: the largest move kept (metres at a grid's corners), the iterations
+    per level at most, and the grids each grid is refined against after the first iteration."""
+    max_move_m: float = MAX_MOVE_M
+    iterations: int = ITERATIONS
+    max_partners: int = MAX_PARTNERS
+
+
+# at the end of one estimation of final maps (estimator.relax_group): a group that joined a few tenths of a degree
+# turned moves further (maze36 of the generated buildings, seed 2: 0.26 m put four maps 3.3-3.9 cells off right;
+# groups of 4-6 of the demo's final maps turned 0.6 degrees: 0.29-0.42 m), and a group of 9 that joined 0.6 degrees
+# turned over an open atrium (mall36, seed 3) is held by the few walls it shares with the rest, which 6 partners a grid
+# left out; it turned back by under a tenth of a degree per iteration
+FINAL = Limits(max_move_m=0.5, iterations=10, max_partners=12)
 STILL_M, STILL_RAD = 0.002, 5e-5   # a step this small ends a level (a tenth of a degree is 1.7e-3 rad)
 PRIOR = 1.0               # weight (in correspondences) keeping a direction no wall constrains where it was
 
@@ -105,11 +118,10 @@ def _fits(pairs, samples, prepared, placed) -> int:
 
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box],
-          min_overlap_m2: float = 0.0, seed: int = 0,
-          max_move_m: float = MAX_MOVE_M) -> Optional[Dict[int, np.ndarray]]:
+          min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = Limits()) -> Optional[Dict[int, np.ndarray]]:
     """The placements (grid -> metric transform into the reference's frame) refined together, the reference fixed;
-    None when they stay as they are (no pair to refine on, no better fit, or a move beyond MAX_MOVE_M at the corners
-    of a grid's known part). Pairs whose footprints share less than `min_overlap_m2` (the common area a match
+    None when they stay as they are (no pair to refine on, no better fit, or a move beyond limits.max_move_m at the
+    corners of a grid's known part). Pairs whose footprints share less than `min_overlap_m2` (the common area a match
     needs) hold too little of each other's walls to count."""
     moving = [k for k in placed if k != reference and prepared[k] is not None]
     pairs = overlapping_pairs([k for k in placed if prepared[k] is not None], footprints, min_overlap_m2)
@@ -124,7 +136,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     first, found = True, {}   # the first iteration: correspondences of each pair
     fitted = list(pairs)      # every pair judges the result
     for radius in RADII:
-        for _ in range(ITERATIONS):
+        for _ in range(limits.iterations):
             # the walls' centre of each grid in the merged frame: turns about it keep the system well conditioned
             centre = {k: tf.apply(out[k] @ prepared[k].px_to_map, samples[k][0]).mean(axis=0) for k in samples}
             back = {k: tf.inverse(out[k]) for k in samples}
@@ -134,8 +146,8 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
             for i, j in pairs:
                 if (i, j) in idle:
                     continue
-                p, q, n = _correspondences(samples[i], prepared[j], to_px[j] @ back[j] @ out[i] @ prepared[i].px_to_map,
-                                           radius)
+                model = to_px[j] @ back[j] @ out[i] @ prepared[i].px_to_map
+                p, q, n = _correspondences(samples[i], prepared[j], model, radius)
                 if len(p) < MIN_PAIRS:
                     if radius == RADII[0]:
                         idle.add((i, j))
@@ -150,17 +162,20 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                 n /= np.hypot(n[:, 0], n[:, 1])[:, None]
                 r = ((p - q) * n).sum(axis=1)
                 w = _weights(r, frame, radius)
-                rows = []
-                for k, at, sign in ((i, p, 1.0), (j, q, -1.0)):
-                    if k not in column:
-                        continue
-                    rel = at - centre[k]
-                    jac = sign * np.column_stack([n[:, 0], n[:, 1], rel[:, 0] * n[:, 1] - rel[:, 1] * n[:, 0]])
-                    rows.append((column[k], jac))
-                for ca, ja in rows:
-                    g[ca:ca + 3] += ja.T @ (w * r)
-                    for cb, jb in rows:
-                        h[ca:ca + 3, cb:cb + 3] += ja.T @ (w[:, None] * jb)
+                at, jacobians = [], []
+                for k, on, sign in ((i, p, 1.0), (j, q, -1.0)):
+                    if k in column:
+                        rel = on - centre[k]
+                        at.append(column[k])
+                        jacobians.append(sign * np.column_stack([n[:, 0], n[:, 1],
+                                                                 rel[:, 0] * n[:, 1] - rel[:, 1] * n[:, 0]]))
+                # the pair's block of the normal equations in one product
+                jac = np.hstack(jacobians) if len(jacobians) > 1 else jacobians[0]
+                hb, gb = jac.T @ (w[:, None] * jac), jac.T @ (w * r)
+                for a, ca in enumerate(at):
+                    g[ca:ca + 3] += gb[3 * a:3 * a + 3]
+                    for b, cb in enumerate(at):
+                        h[ca:ca + 3, cb:cb + 3] += hb[3 * a:3 * a + 3, 3 * b:3 * b + 3]
             if first:
                 # from here on each grid is refined against the few grids it shares most walls with: a fleet's
                 # large maps all overlap (30 robots of a hospital: 432 pairs), and the others add time, not accuracy
@@ -169,7 +184,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                 kept: Dict[int, int] = {}
                 strong = set()
                 for i, j in ranked:
-                    if kept.get(i, 0) < MAX_PARTNERS or kept.get(j, 0) < MAX_PARTNERS:
+                    if kept.get(i, 0) < limits.max_partners or kept.get(j, 0) < limits.max_partners:
                         strong.add((i, j))
                         kept[i], kept[j] = kept.get(i, 0) + 1, kept.get(j, 0) + 1
                 pairs = [ij for ij in pairs if ij in strong]
@@ -183,7 +198,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                 break
     moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
     before, after = _fits(fitted, samples, prepared, placed), _fits(fitted, samples, prepared, out)
-    if moved > max_move_m or after <= before:
+    if moved > limits.max_move_m or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)
         return None
     log.debug('relaxed %d placements on %d of %d pairs: walls fitting %d -> %d, moved up to %.3f m', len(moving),

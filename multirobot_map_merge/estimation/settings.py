@@ -25,7 +25,7 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
     # a member that the maps left out single out leaves the merge (eviction.py): for one estimation of final maps
     # (merge_maps); the node turns it off (see ros/params.py)
     evict: bool = True
-    # the placements of an estimation afresh refined together at its end (relax.py, FINAL_MAX_MOVE_M): for one
+    # the placements of an estimation afresh refined together at its end (relax.py, relax.FINAL): for one
     # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead
     relax_final: bool = True
     # the grids left out of an estimation afresh searched once more onto the merge (growth.search_left_out): for one
