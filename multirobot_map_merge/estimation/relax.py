@@ -135,6 +135,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first, found = True, {}   # the first iteration: correspondences of each pair
     fitted = list(pairs)      # every pair judges the result
+    before = 0                # walls fitting at the placements given, over the pairs fitted
     for radius in RADII:
         for _ in range(limits.iterations):
             # the walls' centre of each grid in the merged frame: turns about it keep the system well conditioned
@@ -148,6 +149,10 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                     continue
                 model = to_px[j] @ back[j] @ out[i] @ prepared[i].px_to_map
                 p, q, n = _correspondences(samples[i], prepared[j], model, radius)
+                if first:
+                    # the walls fitting before (_fits) are those of these within FIT_PX: the same pairs, the same test
+                    gap = q - p
+                    before += int(np.count_nonzero(gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1] <= FIT_PX * FIT_PX))
                 if len(p) < MIN_PAIRS:
                     if radius == RADII[0]:
                         idle.add((i, j))
@@ -197,7 +202,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break
     moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
-    before, after = _fits(fitted, samples, prepared, placed), _fits(fitted, samples, prepared, out)
+    after = _fits(fitted, samples, prepared, out)
     if moved > limits.max_move_m or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)
         return None
