@@ -5,7 +5,7 @@ import pytest
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation import hypotheses
-from multirobot_map_merge.estimation.hypotheses import ransac_rigid
+from multirobot_map_merge.estimation.hypotheses import ransac_rigid, refit
 
 
 def _all_at_once(p, q, threshold, iterations, rng):
@@ -24,14 +24,7 @@ def _all_at_once(p, q, threshold, iterations, rng):
     ex = c * p[:, 0] - s * p[:, 1] + tx - q[:, 0]
     ey = s * p[:, 0] + c * p[:, 1] + ty - q[:, 1]
     inliers = ex * ex + ey * ey < threshold * threshold
-    mask = inliers[np.argmax(inliers.sum(axis=1))]
-    model = None
-    for _ in range(3):
-        if mask.sum() < 3:
-            break
-        model = tf.kabsch(p[mask], q[mask])
-        mask = np.hypot(*(tf.apply(model, p) - q).T) < threshold
-    return model, mask
+    return refit(p, q, inliers[np.argmax(inliers.sum(axis=1))], threshold)
 
 
 @pytest.mark.parametrize('block', [hypotheses.RANSAC_BLOCK, 997])

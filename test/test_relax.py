@@ -74,17 +74,23 @@ def test_relaxation_leaves_right_placements_and_far_off_ones_where_they_are(repo
     assert relaxed(_turned_together(grids, true, 10.0)) is None
 
 
-def test_a_group_joined_on_few_shared_walls_is_turned_back_not_further(repo_root):
-    """Twelve demo maps as tracking kept them in a live run: robots 8, 11 and 12, placed as a group, 0.24 degrees
-    off the others, with which they share few walls. The walls fit best at the truth; the relaxation brings every map
-    within 0.15 degrees and 12 cm (plain least squares, led by walls paired with the wrong wall, turned it to 0.45)."""
+def _demo12(repo_root):
+    """Twelve final maps of a live demo run: the case (tracking's placements), the robots' names, their grids, the
+    reference's index and the true placements in its frame."""
     folder = repo_root / 'test' / 'data' / 'demo12_turned_group'
     case = json.loads((folder / 'case.json').read_text())
     names = sorted(case['placements'])
     grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
     ref = names.index(case['reference'])
     start = {n: tf.rigid(*case['start_poses'][n]) for n in names}
-    true = [tf.inverse(start[names[ref]]) @ start[n] for n in names]
+    return case, names, grids, ref, [tf.inverse(start[names[ref]]) @ start[n] for n in names]
+
+
+def test_a_group_joined_on_few_shared_walls_is_turned_back_not_further(repo_root):
+    """Twelve demo maps as tracking kept them in a live run: robots 8, 11 and 12, placed as a group, 0.24 degrees
+    off the others, with which they share few walls. The walls fit best at the truth; the relaxation brings every map
+    within 0.15 degrees and 12 cm (plain least squares, led by walls paired with the wrong wall, turned it to 0.45)."""
+    case, names, grids, ref, true = _demo12(repo_root)
     placed = {k: tf.rigid(*case['placements'][n]) for k, n in enumerate(names)}
     group = [names.index(n) for n in ('robot_8', 'robot_11', 'robot_12')]
     assert all(_error(grids[k], placed[k], true[k])[0] > 0.2 for k in group)
@@ -127,13 +133,7 @@ def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_esti
     partners, more iterations, moves up to 0.5 m at the corners of such large maps) brings every map within 0.1
     degrees and 10 cm."""
     from multirobot_map_merge.estimation.relax import FINAL, Limits
-    folder = repo_root / 'test' / 'data' / 'demo12_turned_group'
-    case = json.loads((folder / 'case.json').read_text())
-    names = sorted(case['placements'])
-    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
-    ref = names.index(case['reference'])
-    start = {n: tf.rigid(*case['start_poses'][n]) for n in names}
-    true = [tf.inverse(start[names[ref]]) @ start[n] for n in names]
+    _, names, grids, ref, true = _demo12(repo_root)
     group = [names.index(n) for n in ('robot_10', 'robot_6', 'robot_7', 'robot_8')]
     boxes = [footprint(grids[k], true[k]) for k in group]
     cx, cy = np.mean([(b[0] + b[2]) / 2 for b in boxes]), np.mean([(b[1] + b[3]) / 2 for b in boxes])

@@ -120,7 +120,12 @@ def ransac_rigid(p: np.ndarray, q: np.ndarray, threshold: float, iterations: int
     k = int(np.argmax(counts))
     ex = c[k, 0] * px - s[k, 0] * py + tx[k, 0] - qx
     ey = s[k, 0] * px + c[k, 0] * py + ty[k, 0] - qy
-    mask = ex * ex + ey * ey < limit
+    return refit(p, q, ex * ex + ey * ey < limit, threshold)
+
+
+def refit(p: np.ndarray, q: np.ndarray, mask: np.ndarray, threshold: float) -> Tuple[Optional[np.ndarray], np.ndarray]:
+    """The rigid transform p -> q fitted on the matches of `mask`, and its inliers, three times over (None while
+    fewer than 3)."""
     model = None
     for _ in range(3):
         if mask.sum() < 3:
