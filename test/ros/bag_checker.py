@@ -56,6 +56,15 @@ def goal_near(world, clearance, start, rng=(1.0, 2.0)):
     return None
 
 
+
+def _group_alive(pgid: int) -> bool:
+    """Whether any process of the process group is still running."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
 class BagRecordMerge(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -125,6 +134,11 @@ class BagRecordMerge(unittest.TestCase):
             except subprocess.TimeoutExpired:
                 os.killpg(recorder.pid, signal.SIGKILL)
                 recorder.wait()
+        # `rosbag record` runs the recorder as its child, which may still be closing the bag when the parent has
+        # exited (once in CI it renamed the bag while it was being reindexed): wait for the whole group, bounded
+        deadline = time.monotonic() + 20.0
+        while not os.path.isfile(bag) and _group_alive(recorder.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
         if not os.path.isfile(bag) and os.path.isfile(bag + '.active'):
             # a recorder that did not close its bag within 20 s of SIGINT (once in CI) leaves it unindexed and
             # named .active: reindexed, it holds what was recorded
