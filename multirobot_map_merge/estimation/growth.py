@@ -264,11 +264,8 @@ class Grower:
             if m.accepted and self._waits(m, matched_onto):
                 continue
             if m.accepted:
-                group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
+                self._join(group, m)
                 unplaced.remove(m.i)
-                self.refused.pop(m.i, None)
-                self._forget_search(m.i, group)
-                self._settle(1)
                 added = True
             else:
                 self.refused[m.i] = m
@@ -566,10 +563,15 @@ class Grower:
         for m in joining:
             log.debug('grid %d left out joins the merge: a search onto it places it agreeing with members %s',
                       m.i, sorted(group.members))
-            group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
-            self.refused.pop(m.i, None)
-            self._settle(1)
+            self._join(group, m)
         return len(joining)
+
+    def _join(self, group: Group, m: PairMatch) -> None:
+        """Grid m.i joins the group by its accepted match m."""
+        group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
+        self.refused.pop(m.i, None)
+        self._forget_search(m.i, group)
+        self._settle(1)
 
     def _evict(self, group: Group, j: int, why: str) -> None:
         """Member j leaves the group and stays out of this estimation."""
