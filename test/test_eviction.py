@@ -22,6 +22,14 @@ def building() -> np.ndarray:
     return world
 
 
+def stubbed_building() -> np.ndarray:
+    """The hall with more wall stubs: no corridor to slide along."""
+    world = building()
+    for r0, r1, c in ((0, 40, 40), (160, 200, 70), (0, 50, 150), (150, 200, 180), (0, 30, 260), (170, 200, 280)):
+        world[r0:r1, c] = 100
+    return world
+
+
 def seen(world: np.ndarray, c0: int, c1: int) -> Grid:
     data = np.full(world.shape, -1, np.int8)
     data[:, c0:c1] = world[:, c0:c1]
@@ -56,12 +64,16 @@ def test_the_member_two_maps_left_out_single_out_leaves_and_one_map_is_not_enoug
     grids, prepared, members, footprints, refused = scene()
     s = EstimationSettings()
 
-    def single_out(left_out, keep=()):
+    def single_out(left_out, keep=(), seen=None):
         return contradicted_members(left_out, refused, members, footprints, lambda k, t: footprint(grids[k], t),
-                                    prepared, keep, s)
+                                    prepared, keep, s, seen)
     assert single_out([3, 4]) == [0]
     assert single_out([3]) == []          # two members agree with it: not enough alone
     assert single_out([3, 4], keep=(0,)) == []   # the node's reference robot stays
+    # a refused match made before member 0 joined does not vote against it: its place could be an alias that
+    # member 0's walls would have ruled out
+    assert single_out([3, 4], seen={3: frozenset({0, 1, 2}), 4: frozenset({1, 2})}) == []
+    assert single_out([3, 4], seen={3: frozenset({0, 1, 2}), 4: frozenset({0, 1, 2})}) == [0]
 
 
 def test_a_map_whose_match_found_an_alias_is_judged_at_its_other_places():
@@ -138,9 +150,7 @@ def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for
     """search_left_out: a map left out that the merge's members agree with over most of its area joins; the broken
     map (a wall across the floor the members saw free) does not, nor a right map that shares less than half its area
     with the merge (the merge cannot vouch for the rest)."""
-    world = building()
-    for r0, r1, c in ((0, 40, 40), (160, 200, 70), (0, 50, 150), (150, 200, 180), (0, 30, 260), (170, 200, 280)):
-        world[r0:r1, c] = 100   # more wall stubs: the hall is no corridor to slide along
+    world = stubbed_building()
     broken = seen(world, 0, 300)
     broken.data[40:160, 160] = 100
     grids = [broken, seen(world, 0, 170), seen(world, 40, 200), seen(world, 0, 120), seen(world, 20, 190),
@@ -163,5 +173,61 @@ def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for
     grower, group = _merge_of(grids, [1, 6, 7])
     m = match_pair(8, 1, grower.prepared[8], group.union.prepared(), grower.s, onto_union=True, descriptors=False)
     assert m.accepted and np.allclose(m.transform_m, np.eye(3), atol=0.05)
-    grower.search_left_out(group)
-    assert 8 not in group.members and 4 in group.members
+    found, grower.found = grower.found, {8: grower.found[8]}   # only map 8 searched
+    assert grower.search_left_out(group) == 0 and 8 not in group.members
+    # once map 4 has joined (it overlaps map 8 too), two members vouch for it
+    grower.found[4] = found[4]
+    assert grower.search_left_out(group) == 2 and 4 in group.members and 8 in group.members
+
+
+def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined():
+    """search_left_out: a map whose search placed it right, but sharing too little with the merge, is searched again
+    once a map beside it joined the merge, and joins; with one search each it stays out."""
+    from multirobot_map_merge.estimation import growth
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 60, 210),
+             seen(world, 140, 230)]
+    for rounds, joined in ((1, [0, 1, 2, 3]), (growth.LEFT_OUT_ROUNDS, [0, 1, 2, 3, 4])):
+        saved, growth.LEFT_OUT_ROUNDS = growth.LEFT_OUT_ROUNDS, rounds
+        try:
+            grower, group = _merge_of(grids, [0, 1, 2])
+            grower.search_left_out(group)
+        finally:
+            growth.LEFT_OUT_ROUNDS = saved
+        assert sorted(group.members) == joined
+    rot, shift = tf.difference(group.members[4], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+    assert rot < 0.01 and shift < 0.1
+
+
+def test_maps_searched_at_the_end_single_out_a_broken_member_and_join_once_it_left():
+    """The searches of the maps left out at the end of an estimation afresh are refused where a broken member (a wall
+    across the floor the others saw free) contradicts them; they vote it out (evict_contradicted), and the next
+    search places them."""
+    world = stubbed_building()
+    broken = seen(world, 0, 300)
+    broken.data[40:160, 160] = 100
+    grids = [broken, seen(world, 0, 170), seen(world, 130, 300), seen(world, 60, 240), seen(world, 70, 250)]
+    grower, group = _merge_of(grids, [1, 0, 2])
+    assert grower.search_left_out(group) == 0
+    assert {k for k, _ in grower.refused_onto} == {3, 4}
+    assert grower.evict_contradicted(group, [group], [], make_room=True) and sorted(group.members) == [1, 2]
+    assert grower.search_left_out(group) == 2 and sorted(group.members) == [1, 2, 3, 4]
+    for k in (3, 4):
+        rot, shift = tf.difference(group.members[k], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+        assert rot < 0.01 and shift < 0.1
+
+
+def test_a_member_leaves_at_the_end_only_to_let_a_map_in():
+    """With make_room (the end of an estimation afresh), a member that the maps left out single out leaves only if
+    one of them would join without it: maps that share too little with the rest of the merge (the broken maps of a
+    generated round hall, placed at its hub by one part each, voted out the map that had seen the hub) take no one
+    out."""
+    world = stubbed_building()
+    broken = seen(world, 0, 300)
+    broken.data[40:160, 160] = 100
+    grids = [broken, seen(world, 0, 170), seen(world, 100, 170), seen(world, 60, 300), seen(world, 70, 300)]
+    for make_room, members in ((True, [0, 1, 2]), (False, [1, 2])):
+        grower, group = _merge_of(grids, [1, 0, 2])
+        assert grower.search_left_out(group) == 0 and {k for k, _ in grower.refused_onto} == {3, 4}
+        grower.evict_contradicted(group, [group], [], make_room=make_room)
+        assert sorted(group.members) == members

@@ -43,6 +43,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 # by more (or places more maps); below, the two differ by the usual noise (a few cm) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
+END_EVICTIONS = 2      # rounds in which the maps left out, searched at the end of an estimation afresh, vote out members
 POSTPONED_ROUNDS = 3   # estimations in a row on the same maps with searches postponed before one has no budget
 
 
@@ -304,7 +305,14 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
             chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
         if settings.search_left_out and not tracked:
-            grower.search_left_out(chosen)
+            # the maps left out, searched onto the merge, can single out a broken member that kept them out
+            for _ in range(END_EVICTIONS + 1):
+                grower.search_left_out(chosen)
+                if not settings.evict or not grower.evict_contradicted(
+                        chosen, groups, [k for k in present if not any(k in g.members for g in groups)],
+                        make_room=True):
+                    break
+                chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings)
@@ -317,6 +325,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
     pairs += [c.match for c in checks if c.transform is None and c.k not in chosen.members
               and c.k not in grower.refused]
     seconds = time.perf_counter() - t0
+    for g in sorted(groups, key=lambda g: -len(g.members)):
+        if g is not chosen and len(g.members) > 1:
+            log.debug('a group left out of the merge: grids %s (seed %d)', sorted(g.members), g.seed)
     log.debug('estimated %d grids: %d placed around grid %d (%d kept from the last estimate), %d groups, %.2f s',
               len(grids), len(chosen.members), chosen.seed, tracked, len(groups), seconds)
     return Estimate(transforms, chosen.seed, pairs, seconds, tracked, grower.postponed)

@@ -63,12 +63,15 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
 def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatch],
                          members: Mapping[int, np.ndarray], footprints: Mapping, footprint_of,
                          prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
-                         s: EstimationSettings) -> List[int]:
+                         s: EstimationSettings, seen: Optional[Mapping[int, frozenset]] = None,
+                         voters: Optional[Dict[int, list]] = None) -> List[int]:
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
     that match's other places (PairMatch.other_places_m) where it does, agrees with at
     least MIN_AGREEING members and contradicts this one alone. A member singled out by MIN_VOTES maps, or by one
-    that MANY_AGREEING members agree with, is returned, the most singled out first."""
+    that MANY_AGREEING members agree with, is returned, the most singled out first. With `seen` (grid -> the members
+    its refused match was made against), a map votes only against a member its match saw; `voters`, if given, is
+    filled with member -> [(grid, the place it voted from)]."""
     votes: Counter = Counter()
     strong: Dict[int, bool] = {}
     if len(members) <= MIN_AGREEING:
@@ -88,9 +91,11 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         else:
             continue
         j = contradicting[0]
-        if j in keep:
-            continue
+        if j in keep or (seen is not None and j not in seen.get(k, ())):
+            continue   # a match made before j joined: its place may be an alias that j's walls would have ruled out
         votes[j] += 1
+        if voters is not None:
+            voters.setdefault(j, []).append((k, place))
         strong[j] = strong.get(j, False) or len(agreeing) >= MANY_AGREEING
         log.debug('grid %d left out agrees with members %s of the merge and contradicts member %d alone', k,
                   agreeing, j)

@@ -38,6 +38,7 @@ from .verify import overlap_found, plausible, refusal, verify
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement must share with the merge
 JOIN_EVICTIONS = 3     # members taken out of two groups whose unions refuse each other (evict_at_join), at most
+LEFT_OUT_ROUNDS = 3    # search_left_out's searches: the first, and again while maps join (accepted ones short of the share)
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
@@ -126,6 +127,7 @@ class Grower:
         self.names = list(names) if names is not None else list(range(len(prepared)))
         self.refused: Dict[int, PairMatch] = {}  # grid -> its last refused match
         self.refused_onto: Dict[tuple, PairMatch] = {}   # (grid, group seed) -> its last refused match onto it
+        self.refused_seen: Dict[tuple, frozenset] = {}    # (grid, group seed) -> the members that match saw
         self.contradicting: set = set()          # grids that overlap a group's union but contradict it
         # grid -> members of the unions a refused match found it overlaps (overlap_found, by the rule for pairs when
         # the group was one grid: the rule for unions on a pair's refusal kept a robot from the search that placed it)
@@ -141,6 +143,13 @@ class Grower:
         self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
         self.neighbours = NeighbourCache()   # descriptor distances of this estimation's matches
         self.pair_evidence = PairEvidence(prepared, settings, pool, self.neighbours)   # stronger.py
+        # search_left_out's: where its last search placed each grid (None: nowhere), the members taken out and the
+        # members' footprints as of its last call
+        self.left_out_boxes: Dict[int, Optional[Box]] = {}
+        self.left_out_accepted: set = set()          # those it placed by the rules of a pair, short of joining
+        self.left_out_members: frozenset = frozenset()
+        self.left_out_evicted: set = set()
+        self.left_out_footprints: Dict[int, Box] = {}
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has
@@ -270,6 +279,7 @@ class Grower:
             else:
                 self.refused[m.i] = m
                 self.refused_onto[(m.i, m.j)] = m
+                self.refused_seen[(m.i, m.j)] = frozenset(matched_onto)
                 if overlap_found(m.best, self.s, len(group.members) > 1):
                     self.found.setdefault(m.i, []).append(frozenset(group.members))
                 if len(group.members) > 1 and m.best is not None and m.best.support >= self.s.min_support \
@@ -372,19 +382,25 @@ class Grower:
                                       frozenset(self.names[m] for m in group.members)))
             todo = [c.k for c in failed if c is not worst]
 
-    def evict_contradicted(self, group: Group, groups: List[Group], unplaced: List[int]) -> bool:
+    def evict_contradicted(self, group: Group, groups: List[Group], unplaced: List[int],
+                           make_room: bool = False) -> bool:
         """Take out of the merge (`group`, one of `groups`) a member that the maps outside it contradict while they
         agree with the other members (eviction.py: a broken map placed by one of its parts, or a map accepted at
         the edge of the rules), then grow it again with the grids in no group (`unplaced`) and match the other
         groups onto it. The member taken out stays out of this estimation. Whether one was taken out (the merge may
-        then be another object of `groups`: merge_groups keeps the preferred reference's group)."""
+        then be another object of `groups`: merge_groups keeps the preferred reference's group). With `make_room`,
+        only a member without which a map that singled it out would join (_makes_room)."""
         evicted = False
         for _ in range(MAX_PASSES):
             outside = [k for k, p in enumerate(self.prepared) if p is not None and k not in group.members]
             onto = {k: self.refused_onto[(k, group.seed)] for k in outside if (k, group.seed) in self.refused_onto}
+            seen = {k: self.refused_seen.get((k, group.seed), frozenset()) for k in onto}
+            voters: Dict[int, list] = {}
             singled = contradicted_members(outside, onto, group.members, group.union.footprints,
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
-                                           (self.reference,), self.s)
+                                           (self.reference,), self.s, seen, voters)
+            if make_room:
+                singled = [j for j in singled if self._makes_room(group, j, voters[j])]
             if not singled:
                 break
             self._evict(group, singled[0], 'maps the other members agree with contradict it')
@@ -421,10 +437,12 @@ class Grower:
         for (k, j), m in list(self.refused_onto.items()):
             if j == old_seed:
                 del self.refused_onto[(k, j)]
+                seen = self.refused_seen.pop((k, j), frozenset())
                 if m.transform_m is not None and (k, new_seed) not in self.refused_onto:
                     self.refused_onto[(k, new_seed)] = dataclasses.replace(
                         m, j=new_seed, transform_m=old_to_new @ m.transform_m,
                         other_places_m=[old_to_new @ t for t in m.other_places_m])
+                    self.refused_seen[(k, new_seed)] = seen
 
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
@@ -503,6 +521,25 @@ class Grower:
             self._evict(group, j, f'the maps of group {by} agree with the other members and contradict it')
         return True
 
+    def _makes_room(self, group: Group, j: int, voters: List[tuple]) -> bool:
+        """Whether a map that singled out member j (voters: (grid, where it voted from, metric in the group's frame))
+        would join the group's union without j there, by search_left_out's rules: the pair rules and LEFT_OUT_SHARE
+        of its known area in common."""
+        union = UnionMap(self.res, group.union.keypoints_of)
+        for k, t in group.members.items():
+            if k != j:
+                union.add(k, group.union.grids[k], group.union.parts[k], t)
+        pu = union.prepared()
+        if pu is None:
+            return False
+        for k, place in voters:
+            pk = self.prepared[k]
+            c = verify(pk, pu, tf.inverse(pu.px_to_map) @ place @ pk.px_to_map, self.s)
+            if plausible(c, self.s) and not refusal(c, pk, pu, self.s, onto_union=True) \
+                    and c.overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2:
+                return True
+        return False
+
     def _agree_without(self, small: Group, big: Group, members: Dict[int, Dict[int, np.ndarray]],
                        small_to_big: np.ndarray) -> bool:
         """Whether the unions of the two groups' `members` (group id -> the members kept) pass the acceptance rules
@@ -531,40 +568,82 @@ class Grower:
         place agrees wall for wall. On the generated 36-map buildings (seeds 0-2) the searches at the end placed 26
         more maps right. Their placements shared 0.49-1.00 of the map's area with the merge; those of broken maps
         that passed the rules, one part fitting (the hub of a round hall, 29-38 m2), 0.08-0.35. One right map that a
-        single member agreed with was placed 3 cells off."""
+        single member agreed with was placed 3 cells off.
+
+        While maps join, those whose placement passed the rules but shared too little are searched again onto the
+        grown merge (LEFT_OUT_ROUNDS searches in all): the true place beside a map that just joined shares more
+        (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2 onto the map that joined), while
+        an alias the new member contradicts is refused. Its refusals are kept as the growth's are: at the end of an
+        estimation afresh they vote on the members (evict_contradicted, estimator.py). Called again, it searches a
+        grid searched before only where the verdict can have changed: its placement passed the pair rules and the
+        members have changed since, or a member that its matches saw or its last placement overlaps has left."""
         if self.search_seconds >= self.s.search_budget_s:
             return 0
         union = group.union.prepared()
+        gone = self.evicted - self.left_out_evicted   # members taken out since the last call
+        changed = frozenset(group.members) != self.left_out_members
+        self.left_out_evicted = set(self.evicted)
         todo = []
         for k, p in enumerate(self.prepared):
             if p is None or k in group.members or k in self.evicted:
                 continue
-            if not any(members <= group.members.keys() for members in self.found.get(k, ())):
+            found = self.found.get(k, ())
+            if not any(members - self.evicted <= group.members.keys() for members in found):
                 continue   # no match found where it overlaps the merge: the growth searched it (_search)
             last = self.memory.searches.get((self.names[k], self.names[group.seed]))
             if last is not None and union.known_pixels < SEARCH_GROWTH * last[1]:
                 continue
-            todo.append(k)
-        started = time.perf_counter()
-        matches = list(self.pool.map(lambda k: match_pair(k, group.seed, self.prepared[k], union, self.s,
-                                                          onto_union=True, descriptors=False,
-                                                          neighbours=self.neighbours), todo))
-        self.search_seconds += time.perf_counter() - started
-        joining = []
-        for m in matches:
-            pk = self.prepared[m.i]
-            if not m.accepted or m.best.overlap_m2 < LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2:
+            box = self.left_out_boxes.get(k, False)
+            if box is not False and not (changed and k in self.left_out_accepted) \
+                    and not any(members & gone for members in found) \
+                    and not any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone):
+                # searched at the end already and refused, and no member it saw has left since: the same verdict
                 continue
-            agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
-                                                    footprint(self.grids[m.i], m.transform_m), self.prepared,
-                                                    self.s, strict=False)
-            if len(agreeing) >= MIN_AGREEING and not contradicting:
-                joining.append(m)
-        for m in joining:
-            log.debug('grid %d left out joins the merge: a search onto it places it agreeing with members %s',
-                      m.i, sorted(group.members))
-            self._join(group, m)
-        return len(joining)
+            todo.append(k)
+        self.left_out_footprints.update(group.union.footprints)
+        joined = 0
+        for _ in range(LEFT_OUT_ROUNDS):
+            members = frozenset(group.members)
+            started = time.perf_counter()
+            matches = list(self.pool.map(lambda k: match_pair(k, group.seed, self.prepared[k], union, self.s,
+                                                              onto_union=True, descriptors=False,
+                                                              neighbours=self.neighbours), todo))
+            self.search_seconds += time.perf_counter() - started
+            joining = []
+            for m in matches:
+                pk = self.prepared[m.i]
+                if not m.accepted or m.best.overlap_m2 < LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2:
+                    continue
+                agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
+                                                        footprint(self.grids[m.i], m.transform_m), self.prepared,
+                                                        self.s, strict=False)
+                if len(agreeing) >= MIN_AGREEING and not contradicting:
+                    joining.append(m)
+            for m in joining:
+                log.debug('grid %d left out joins the merge: a search onto it places it agreeing with members %s',
+                          m.i, sorted(group.members))
+                self._join(group, m)
+            joined += len(joining)
+            for m in matches:
+                self.left_out_boxes[m.i] = footprint(self.grids[m.i], m.transform_m) \
+                    if m.transform_m is not None else None
+                (self.left_out_accepted.add if m.accepted else self.left_out_accepted.discard)(m.i)
+                if not m.accepted and m.best is not None:
+                    # where the merge refused it, as the growth's refusals (evict_contradicted's votes); not a
+                    # placement that passed the rules but shares too little (a broken map placed by one part: the
+                    # generated round hall's, at its hub, voted out the map that had seen the hub)
+                    self.refused[m.i] = m
+                    self.refused_onto[(m.i, m.j)] = m
+                    self.refused_seen[(m.i, m.j)] = members
+            # a placement that passes the pair rules but shares too little with the merge may be the true one beside
+            # a map that just joined: searched again onto the grown merge
+            todo = sorted(k for k in self.left_out_accepted if k not in group.members)
+            if not joining or not todo or self.search_seconds >= self.s.search_budget_s:
+                break
+            union = group.union.prepared()
+        if todo or joined:
+            self.left_out_members = members   # the members its last searches saw
+        return joined
 
     def _join(self, group: Group, m: PairMatch) -> None:
         """Grid m.i joins the group by its accepted match m."""
