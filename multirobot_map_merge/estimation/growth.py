@@ -38,7 +38,7 @@ from .verify import overlap_found, plausible, refusal, verify
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement must share with the merge
 JOIN_EVICTIONS = 3     # members taken out of two groups whose unions refuse each other (evict_at_join), at most
-LEFT_OUT_ROUNDS = 3    # search_left_out's searches: the first, and again while maps join (accepted ones short of the share)
+LEFT_OUT_ROUNDS = 3    # search_left_out's rounds: the searches, and again while maps join (those short of the share)
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
@@ -147,6 +147,7 @@ class Grower:
         # members' footprints as of its last call
         self.left_out_boxes: Dict[int, Optional[Box]] = {}
         self.left_out_accepted: set = set()          # those it placed by the rules of a pair, short of joining
+        self.left_out_matches: Dict[int, PairMatch] = {}   # and how
         self.left_out_members: frozenset = frozenset()
         self.left_out_evicted: set = set()
         self.left_out_footprints: Dict[int, Box] = {}
@@ -570,10 +571,10 @@ class Grower:
         that passed the rules, one part fitting (the hub of a round hall, 29-38 m2), 0.08-0.35. One right map that a
         single member agreed with was placed 3 cells off.
 
-        While maps join, those whose placement passed the rules but shared too little are searched again onto the
-        grown merge (LEFT_OUT_ROUNDS searches in all): the true place beside a map that just joined shares more
-        (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2 onto the map that joined), while
-        an alias the new member contradicts is refused. Its refusals are kept as the growth's are: at the end of an
+        While maps join, those whose placement passed the rules but shared too little are judged again there on the
+        grown merge (LEFT_OUT_ROUNDS rounds in all), and searched again where it refuses them: the true place beside a
+        map that just joined shares more (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2
+        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the growth's are: at the end of an
         estimation afresh they vote on the members (evict_contradicted, estimator.py). Called again, it searches a
         grid searched before only where the verdict can have changed: its placement passed the pair rules and the
         members have changed since, or a member that its matches saw or its last placement overlaps has left."""
@@ -601,13 +602,13 @@ class Grower:
                 continue
             todo.append(k)
         self.left_out_footprints.update(group.union.footprints)
-        joined = 0
+        joined, placed = 0, []
         for _ in range(LEFT_OUT_ROUNDS):
             members = frozenset(group.members)
             started = time.perf_counter()
             matches = list(self.pool.map(lambda k: match_pair(k, group.seed, self.prepared[k], union, self.s,
                                                               onto_union=True, descriptors=False,
-                                                              neighbours=self.neighbours), todo))
+                                                              neighbours=self.neighbours), todo)) + placed
             self.search_seconds += time.perf_counter() - started
             joining = []
             for m in matches:
@@ -635,15 +636,30 @@ class Grower:
                     self.refused[m.i] = m
                     self.refused_onto[(m.i, m.j)] = m
                     self.refused_seen[(m.i, m.j)] = members
+                if m.accepted:
+                    self.left_out_matches[m.i] = m
             # a placement that passes the pair rules but shares too little with the merge may be the true one beside
-            # a map that just joined: searched again onto the grown merge
-            todo = sorted(k for k in self.left_out_accepted if k not in group.members)
-            if not joining or not todo or self.search_seconds >= self.s.search_budget_s:
+            # a map that just joined: judged again there on the grown merge, and searched again where that merge
+            # refuses it (an alias that a map that joined contradicts)
+            waiting = sorted(k for k in self.left_out_accepted if k not in group.members)
+            if not joining or not waiting or self.search_seconds >= self.s.search_budget_s:
                 break
             union = group.union.prepared()
+            placed = [m for m in (self._placed_again(self.left_out_matches[k], union) for k in waiting)
+                      if m is not None]
+            todo = [k for k in waiting if not any(m.i == k for m in placed)]
         if todo or joined:
             self.left_out_members = members   # the members its last searches saw
         return joined
+
+    def _placed_again(self, m: PairMatch, union: PreparedGrid) -> Optional[PairMatch]:
+        """The accepted match m of a grid onto a union, judged again at its place on a grown `union` (the same frame):
+        the match with that verification if it still passes the rules of a pair, else None."""
+        pk = self.prepared[m.i]
+        c = verify(pk, union, tf.inverse(union.px_to_map) @ m.transform_m @ pk.px_to_map, self.s)
+        if not plausible(c, self.s) or refusal(c, pk, union, self.s, onto_union=True):
+            return None
+        return dataclasses.replace(m, best=c)
 
     def _join(self, group: Group, m: PairMatch) -> None:
         """Grid m.i joins the group by its accepted match m."""
