@@ -43,7 +43,7 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 # by more (or places more maps); below, the two differ by the usual noise (a few cm) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
-END_EVICTIONS = 2      # rounds in which the maps left out, searched at the end of an estimation afresh, vote out members
+END_EVICTIONS = 2      # rounds in which the maps left out, searched at the end of an estimation, vote out members
 POSTPONED_ROUNDS = 3   # estimations in a row on the same maps with searches postponed before one has no budget
 
 
@@ -299,20 +299,24 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             grower.grow(groups[0], unplaced, search=False)
         groups += descriptor_groups(grower, unplaced, groups[0] if groups else None, preferred_reference)
         groups = search_grow(grower, groups, preferred_reference)
-        chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+
+        def in_no_group() -> List[int]:
+            return [k for k in present if not any(k in g.members for g in groups)]
+
+        def largest() -> Group:
+            return max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+
+        chosen = largest()
         grower.confirm_searches(chosen)
-        if settings.evict and grower.evict_contradicted(
-                chosen, groups, [k for k in present if not any(k in g.members for g in groups)]):
-            chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+        if settings.evict and grower.evict_contradicted(chosen, groups, in_no_group()):
+            chosen = largest()
         if settings.search_left_out and not tracked:
             # the maps left out, searched onto the merge, can single out a broken member that kept them out
             for _ in range(END_EVICTIONS + 1):
                 grower.search_left_out(chosen)
-                if not settings.evict or not grower.evict_contradicted(
-                        chosen, groups, [k for k in present if not any(k in g.members for g in groups)],
-                        make_room=True):
+                if not settings.evict or not grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
                     break
-                chosen = max(groups, key=lambda g: (len(g.members), preferred_reference in g.members))
+                chosen = largest()
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings)

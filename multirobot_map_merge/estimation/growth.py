@@ -33,7 +33,7 @@ from .eviction import MIN_AGREEING, contradicted_members, judge_members
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
-from .verify import overlap_found, plausible, refusal, verify
+from .verify import Placement, overlap_found, plausible, refusal, verify
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement must share with the merge
@@ -526,18 +526,12 @@ class Grower:
         """Whether a map that singled out member j (voters: (grid, where it voted from, metric in the group's frame))
         would join the group's union without j there, by search_left_out's rules: the pair rules and LEFT_OUT_SHARE
         of its known area in common."""
-        union = UnionMap(self.res, group.union.keypoints_of)
-        for k, t in group.members.items():
-            if k != j:
-                union.add(k, group.union.grids[k], group.union.parts[k], t)
-        pu = union.prepared()
-        if pu is None:
+        union = self._union_of(group, {k: t for k, t in group.members.items() if k != j})
+        if union is None:
             return False
         for k, place in voters:
-            pk = self.prepared[k]
-            c = verify(pk, pu, tf.inverse(pu.px_to_map) @ place @ pk.px_to_map, self.s)
-            if plausible(c, self.s) and not refusal(c, pk, pu, self.s, onto_union=True) \
-                    and c.overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2:
+            c = self._passes_onto(self.prepared[k], union, place)
+            if c is not None and self._shares_enough(k, c.overlap_m2):
                 return True
         return False
 
@@ -545,17 +539,28 @@ class Grower:
                        small_to_big: np.ndarray) -> bool:
         """Whether the unions of the two groups' `members` (group id -> the members kept) pass the acceptance rules
         at the placement small_to_big (metric: the small group's frame -> the big one's)."""
-        unions = []
-        for g in (small, big):
-            union = UnionMap(self.res, g.union.keypoints_of)
-            for k, t in members[id(g)].items():
-                union.add(k, g.union.grids[k], g.union.parts[k], t)
-            unions.append(union.prepared())
+        unions = [self._union_of(g, members[id(g)]) for g in (small, big)]
         if unions[0] is None or unions[1] is None:
             return False
-        model = tf.inverse(unions[1].px_to_map) @ small_to_big @ unions[0].px_to_map
-        c = verify(unions[0], unions[1], model, self.s)
-        return plausible(c, self.s) and not refusal(c, unions[0], unions[1], self.s, onto_union=True)
+        return self._passes_onto(unions[0], unions[1], small_to_big) is not None
+
+    def _union_of(self, group: Group, placed: Dict[int, np.ndarray]) -> Optional[PreparedGrid]:
+        """The prepared union of some of the group's members (member -> metric transform into its frame)."""
+        union = UnionMap(self.res, group.union.keypoints_of)
+        for k, t in placed.items():
+            union.add(k, group.union.grids[k], group.union.parts[k], t)
+        return union.prepared()
+
+    def _passes_onto(self, part: PreparedGrid, union: PreparedGrid, to_union: np.ndarray) -> Optional[Placement]:
+        """The verification of `part` placed onto `union` by `to_union` (metric: its frame -> the union's), if it
+        passes the rules of a pair onto a union; else None."""
+        c = verify(part, union, tf.inverse(union.px_to_map) @ to_union @ part.px_to_map, self.s)
+        return c if plausible(c, self.s) and not refusal(c, part, union, self.s, onto_union=True) else None
+
+    def _shares_enough(self, k: int, overlap_m2: float) -> bool:
+        """Whether a placement of grid k sharing `overlap_m2` with the merge shares LEFT_OUT_SHARE of its known area."""
+        pk = self.prepared[k]
+        return overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2
 
     def search_left_out(self, group: Group) -> int:
         """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
@@ -574,10 +579,11 @@ class Grower:
         While maps join, those whose placement passed the rules but shared too little are judged again there on the
         grown merge (LEFT_OUT_ROUNDS rounds in all), and searched again where it refuses them: the true place beside a
         map that just joined shares more (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2
-        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the growth's are: at the end of an
-        estimation afresh they vote on the members (evict_contradicted, estimator.py). Called again, it searches a
-        grid searched before only where the verdict can have changed: its placement passed the pair rules and the
-        members have changed since, or a member that its matches saw or its last placement overlaps has left."""
+        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the
+        growth's are: at the end of an estimation afresh they vote on the members (evict_contradicted, estimator.py).
+        Called again, it searches a grid searched before only where the verdict can have changed: its placement
+        passed the pair rules and the members have changed since, or a member that its matches saw or its last
+        placement overlaps has left."""
         if self.search_seconds >= self.s.search_budget_s:
             return 0
         union = group.union.prepared()
@@ -612,8 +618,7 @@ class Grower:
             self.search_seconds += time.perf_counter() - started
             joining = []
             for m in matches:
-                pk = self.prepared[m.i]
-                if not m.accepted or m.best.overlap_m2 < LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2:
+                if not m.accepted or not self._shares_enough(m.i, m.best.overlap_m2):
                     continue
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
@@ -628,16 +633,18 @@ class Grower:
             for m in matches:
                 self.left_out_boxes[m.i] = footprint(self.grids[m.i], m.transform_m) \
                     if m.transform_m is not None else None
-                (self.left_out_accepted.add if m.accepted else self.left_out_accepted.discard)(m.i)
-                if not m.accepted and m.best is not None:
+                if m.accepted:
+                    self.left_out_accepted.add(m.i)
+                    self.left_out_matches[m.i] = m
+                    continue
+                self.left_out_accepted.discard(m.i)
+                if m.best is not None:
                     # where the merge refused it, as the growth's refusals (evict_contradicted's votes); not a
                     # placement that passed the rules but shares too little (a broken map placed by one part: the
                     # generated round hall's, at its hub, voted out the map that had seen the hub)
                     self.refused[m.i] = m
                     self.refused_onto[(m.i, m.j)] = m
                     self.refused_seen[(m.i, m.j)] = members
-                if m.accepted:
-                    self.left_out_matches[m.i] = m
             # a placement that passes the pair rules but shares too little with the merge may be the true one beside
             # a map that just joined: judged again there on the grown merge, and searched again where that merge
             # refuses it (an alias that a map that joined contradicts)
@@ -647,7 +654,8 @@ class Grower:
             union = group.union.prepared()
             placed = [m for m in (self._placed_again(self.left_out_matches[k], union) for k in waiting)
                       if m is not None]
-            todo = [k for k in waiting if not any(m.i == k for m in placed)]
+            again = {m.i for m in placed}
+            todo = [k for k in waiting if k not in again]
         if todo or joined:
             self.left_out_members = members   # the members its last searches saw
         return joined
@@ -655,11 +663,8 @@ class Grower:
     def _placed_again(self, m: PairMatch, union: PreparedGrid) -> Optional[PairMatch]:
         """The accepted match m of a grid onto a union, judged again at its place on a grown `union` (the same frame):
         the match with that verification if it still passes the rules of a pair, else None."""
-        pk = self.prepared[m.i]
-        c = verify(pk, union, tf.inverse(union.px_to_map) @ m.transform_m @ pk.px_to_map, self.s)
-        if not plausible(c, self.s) or refusal(c, pk, union, self.s, onto_union=True):
-            return None
-        return dataclasses.replace(m, best=c)
+        c = self._passes_onto(self.prepared[m.i], union, m.transform_m)
+        return None if c is None else dataclasses.replace(m, best=c)
 
     def _join(self, group: Group, m: PairMatch) -> None:
         """Grid m.i joins the group by its accepted match m."""
