@@ -125,3 +125,31 @@ def test_a_room_placed_next_door_half_a_turn_off_is_never_published(repo_root):
     later = pipeline.estimate(preferred_reference=0, previous=early.transforms, names=names)
     assert later.transforms[3] is None
     assert all(later.transforms[k] is not None for k in range(3))
+
+
+def test_the_merge_moves_to_a_group_that_outgrew_it_only_once_that_group_shows_more(repo_root):
+    """Two robots of one building are merged; four robots of another (a group that does not overlap them) appear and
+    outnumber them. Their placements are held, so the merge stays with the two published ones (in their frame), not
+    with the larger group's seed alone; once the next estimation confirms the four, the merge moves to them."""
+    samples = repo_root / 'data' / 'samples'
+    pair = [load_map(str(samples / 'three_robots' / f'map_0{i}.yaml')) for i in (0, 1)]
+    four = [load_map(str(samples / 'union_join' / f'map_0{i}.yaml')) for i in range(4)]
+    names = ['a0', 'a1', 'b0', 'b1', 'b2', 'b3']
+    pipeline = MergingPipeline()
+
+    def estimate(grids):
+        pipeline.feed(grids)
+        result = pipeline.estimate(preferred_reference=pipeline.reference or 0, previous=pipeline.transforms,
+                                   names=names)
+        return result, {names[k] for k, t in enumerate(result.transforms) if t is not None}
+
+    estimate(pair + [None] * 4)
+    shown, placed = estimate(pair + [None] * 4)
+    assert placed == {'a0', 'a1'}
+    outgrown, placed = estimate(pair + four)
+    assert placed == {'a0', 'a1'} and outgrown.reference == 0
+    assert np.allclose(outgrown.transforms[1], shown.transforms[1])
+    assert {names[p.i]: p.reason for p in outgrown.pairs if p.reason} == {n: HELD for n in names[2:]}
+    assert outgrown.held == 3   # the group's seed is not held: it is the frame of the others
+    moved, placed = estimate(pair + four)
+    assert placed == {'b0', 'b1', 'b2', 'b3'} and moved.reference == 2

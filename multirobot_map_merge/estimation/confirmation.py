@@ -10,11 +10,16 @@ its own that has changed since (the corner's robot had sent no new map 2 s later
 still held), or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see more). A
 placement published once is not held again (a change of the merged frame re-places robots already confirmed). Only
 with a memory (the node): merge_maps and the offline benchmarks estimate once.
+
+The merged frame moves only to show more robots (keep_standing): when a group without the published reference
+outgrows the published group, its new placements are held in its own frame while the published group stays, and the
+merge moves to it once they are confirmed. A live 12-robot run had shown five robots for 100 sim s, then one for
+15 s: a group of seven had outgrown them, and all its members but its seed were held.
 """
 from __future__ import annotations
 
 import logging
-from typing import List, Optional, Sequence
+from typing import TYPE_CHECKING, List, Optional, Sequence
 
 import numpy as np
 
@@ -24,6 +29,9 @@ from .features import content_key
 from .memory import EstimationMemory
 from .pair import PairMatch
 from .union import known_corners
+
+if TYPE_CHECKING:
+    from .estimator import Estimate
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.confirmation')
 
@@ -90,3 +98,30 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
         pairs[:] = [p for p in pairs if p.i != k]
         pairs.append(PairMatch(k, reference, reason=HELD))
     return len(memory.held)
+
+
+def keep_standing(result: 'Estimate', published: Optional[Sequence[Optional[np.ndarray]]],
+                  preferred_reference: Optional[int]) -> bool:
+    """After hold_new: when the estimation chose a group without the preferred (published) reference and that group
+    now shows fewer grids than the group holding the reference had published, the latter is published instead (in
+    place: `result`'s transforms, reference and pairs); the chosen group's placements stay held in its frame, to be
+    confirmed when a later estimation chooses it again. Whether it did."""
+    if result.standing is None or published is None or preferred_reference is None:
+        return False
+    members, links = result.standing
+    shown_before = [k for k in members if k < len(published) and published[k] is not None]
+    if len(shown_before) <= sum(t is not None for t in result.transforms):
+        return False
+    log.debug('a group of %d grids around grid %d outgrew the published one, its new placements held: %d grids '
+              'published around grid %d', sum(t is not None for t in result.transforms) + result.held,
+              result.reference, len(shown_before), preferred_reference)
+    chosen_seed = result.reference
+    result.transforms = [members.get(k) if k in shown_before else None for k in range(len(result.transforms))]
+    result.reference = preferred_reference
+    kept = set(shown_before)
+    result.pairs = [link for link in links if link.i in kept] + [p for p in result.pairs if p.i not in kept]
+    # the chosen group's seed, and the standing group's new members, wait like the placements held
+    for k in [chosen_seed, *members]:
+        if k is not None and k not in kept and not any(p.i == k for p in result.pairs):
+            result.pairs.append(PairMatch(k, preferred_reference, reason=HELD))
+    return True

@@ -20,14 +20,14 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
-from .confirmation import hold_new, static_for, with_held
+from .confirmation import hold_new, keep_standing, static_for, with_held
 from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
@@ -59,6 +59,9 @@ class Estimate:
     tracked: int = 0   # grids whose previous placement was confirmed (tracking)
     postponed: int = 0   # searches the search budget left to a later estimation (settings.search_budget_s)
     held: int = 0        # new placements left out until a later estimation confirms them (confirmation.py)
+    # when another group is chosen: the group holding the preferred reference, its placements (in that reference's
+    # frame) and links; published instead while the chosen one would show fewer grids (confirmation.keep_standing)
+    standing: Optional[Tuple[Dict[int, np.ndarray], List[PairMatch]]] = field(default=None, repr=False)
 
 
 def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSettings) -> float:
@@ -199,6 +202,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
                                contents, static_for(memory, settled, now))
+        keep_standing(result, published, preferred_reference)
     result.pairs = unique_pairs(result.pairs)
     return result
 
@@ -297,6 +301,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         # descriptors first (cheap): every grid joins a group or seeds one
         if groups:
             grower.grow(groups[0], unplaced, search=False)
+        # the tracked group as it stands now: the regrouping of search_grow takes apart a group that does not join
+        # the largest one, and the tracked group may be published instead of it (confirmation.keep_standing)
+        standing = (dict(groups[0].members), list(groups[0].links.values())) if groups else None
         groups += descriptor_groups(grower, unplaced, groups[0] if groups else None, preferred_reference)
         groups = search_grow(grower, groups, preferred_reference)
 
@@ -328,10 +335,15 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
     pairs = list(chosen.links.values()) + [m for k, m in grower.refused.items() if k not in chosen.members]
     pairs += [c.match for c in checks if c.transform is None and c.k not in chosen.members
               and c.k not in grower.refused]
+    if standing is not None and preferred_reference not in chosen.members:
+        to_reference = tf.inverse(standing[0][preferred_reference])
+        standing = ({k: to_reference @ t for k, t in standing[0].items() if k not in chosen.members}, standing[1])
+    else:
+        standing = None
     seconds = time.perf_counter() - t0
     for g in sorted(groups, key=lambda g: -len(g.members)):
         if g is not chosen and len(g.members) > 1:
             log.debug('a group left out of the merge: grids %s (seed %d)', sorted(g.members), g.seed)
     log.debug('estimated %d grids: %d placed around grid %d (%d kept from the last estimate), %d groups, %.2f s',
               len(grids), len(chosen.members), chosen.seed, tracked, len(groups), seconds)
-    return Estimate(transforms, chosen.seed, pairs, seconds, tracked, grower.postponed)
+    return Estimate(transforms, chosen.seed, pairs, seconds, tracked, grower.postponed, standing=standing)
