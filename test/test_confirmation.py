@@ -5,7 +5,8 @@ import json
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.confirmation import HELD, STATIC_AFTER_S
+from multirobot_map_merge.estimation.confirmation import HELD, STATIC_AFTER_S, hold_new
+from multirobot_map_merge.estimation.memory import EstimationMemory
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.pipeline import MergingPipeline
@@ -153,3 +154,23 @@ def test_the_merge_moves_to_a_group_that_outgrew_it_only_once_that_group_shows_m
     assert outgrown.held == 3   # the group's seed is not held: it is the frame of the others
     moved, placed = estimate(pair + four)
     assert placed == {'b0', 'b1', 'b2', 'b3'} and moved.reference == 2
+
+
+def test_held_placements_are_confirmed_when_their_group_takes_another_seed():
+    """A group's seed is its largest map: two maps of a held group can take turns. Its held placements, restated in
+    the frame of the new seed, are confirmed where they stayed; the old seed is held anew."""
+    grid = Grid(np.zeros((40, 40), np.int8), 0.05, (0.0, 0.0, 0.0))
+    grids = [grid] * 4
+    names = ['r', 'a', 'b', 'c']
+    to_b, to_c = tf.rigid(1.5, 0.2, 0.3), tf.rigid(-0.4, 2.0, -1.1)
+    memory = EstimationMemory()
+    first = [None, np.eye(3), to_b, to_c]   # placed around a
+    assert hold_new(first, 1, [], [np.eye(3), None, None, None], memory, names, grids,
+                    ['r1', 'a1', 'b1', 'c1'], False) == 2
+    # the next estimation, on grown maps, seeds the group with b: the same placements in b's frame
+    second = [None, tf.inverse(to_b), np.eye(3), tf.inverse(to_b) @ to_c]
+    pairs = []
+    assert hold_new(second, 2, pairs, [np.eye(3), None, None, None], memory, names, grids,
+                    ['r2', 'a2', 'b2', 'c2'], False) == 1
+    assert second[3] is not None and second[1] is None
+    assert [names[p.i] for p in pairs] == ['a'] and pairs[0].reason == HELD

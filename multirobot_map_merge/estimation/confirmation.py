@@ -71,21 +71,35 @@ def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Option
     return out
 
 
+def held_in_frame(memory: EstimationMemory, reference_name) -> dict:
+    """The placements the last estimation held, in the frame of grid `reference_name`: as held when it was the
+    reference then; restated through its own held placement when it was held itself (a group's seed is its largest
+    map, and two maps of a group that outgrew the published one can take turns as they grow: keep_standing); none
+    otherwise."""
+    if reference_name == memory.held_reference:
+        return memory.held
+    own = memory.held.get(reference_name)
+    if own is None:
+        return {}
+    to_new = tf.inverse(own[0])
+    return {n: (to_new @ t, first) for n, (t, first) in memory.held.items() if n != reference_name}
+
+
 def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], pairs: List[PairMatch],
              published: Optional[Sequence[Optional[np.ndarray]]], memory: EstimationMemory, names: Sequence,
              grids: Sequence[Optional[Grid]], contents: Optional[Sequence[Optional[str]]], settled: bool) -> int:
     """Hold back (in place: transforms set to None, a reason added to `pairs`) the grids placed now that were not
-    published before, unless the last estimation held them at the same place in the same frame and the map has
+    published before, unless the last estimation held them at the same place (held_in_frame) and the map has
     changed since it was first held, or every map is the same as in the last estimation (`settled`); how many.
     `contents`: the grids' content keys when the estimation has them (features.content_key)."""
-    held_before, same_frame = memory.held, reference is not None and names[reference] == memory.held_reference
+    held_before = held_in_frame(memory, names[reference]) if reference is not None else {}
     memory.held = {}
     memory.held_reference = names[reference] if reference is not None else None
     for k, t in enumerate(transforms):
         if t is None or k == reference or (published is not None and k < len(published)
                                            and published[k] is not None):
             continue
-        before = held_before.get(names[k]) if same_frame else None
+        before = held_before.get(names[k])
         now = contents[k] if contents is not None else content_key(grids[k])
         first = now   # the content of the map it was first held on, while it is held at the same place
         if before is not None and tf.difference(t, before[0], known_corners(grids[k]))[1] <= SAME_PLACE_M:
