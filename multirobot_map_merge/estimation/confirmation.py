@@ -8,8 +8,9 @@ that moment tells them from right placements; the same maps a little later do: t
 as they check every placement they keep, and it is published once it still holds, at the same place, on a map of
 its own that has changed since (the corner's robot had sent no new map 2 s later, and the check on the same map
 still held), or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see more). A
-placement published once is not held again (a change of the merged frame re-places robots already confirmed). Only
-with a memory (the node): merge_maps and the offline benchmarks estimate once.
+placement in the last published merge is not held again (a change of the merged frame re-places robots already
+confirmed); one that left the merge before is. Only with a memory (the node): merge_maps and the offline
+benchmarks estimate once.
 
 The merged frame moves only to show more robots (keep_standing): when a group without the published reference
 outgrows the published group, its new placements are held in its own frame while the published group stays, and the
