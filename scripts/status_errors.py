@@ -38,19 +38,14 @@ def main(argv: List[str] = None) -> int:
     ap.add_argument('--degrees', type=float, default=0.75, help='rotation error counted as off (default 0.75)')
     ap.add_argument('--cm', type=float, default=15.0, help='corner error counted as off, cm (default 15)')
     args = ap.parse_args(argv)
-    try:
-        import rosbag
-        # streamed, not listed: a 12-robot run of 650 sim s records 3.4 GB of maps
-        messages = rosbag.Bag(args.bag).read_messages()
-        starts = {'/' + n.strip('/'): tuple(p)
-                  for n, p in json.load(open(args.summary)).get('start_poses', {}).items()}
-    except Exception as e:   # a missing or broken bag or summary
-        print(f'status_errors: cannot read {args.bag} or {args.summary}: {e}', file=sys.stderr)
-        return 2
     maps: Dict[str, RobotMap] = {}
     statuses: List[Tuple[float, Dict[str, Pose]]] = []
     try:
-        for topic, msg, _ in messages:
+        import rosbag
+        starts = {'/' + n.strip('/'): tuple(p)
+                  for n, p in json.load(open(args.summary)).get('start_poses', {}).items()}
+        # streamed, not listed: a 12-robot run of 650 sim s records 3.4 GB of maps
+        for topic, msg, _ in rosbag.Bag(args.bag).read_messages():
             if topic.endswith('/status'):
                 statuses.append((msg.header.stamp.to_sec(), {'/' + n: p for n, p in included_poses(msg).items()}))
                 continue
@@ -60,8 +55,8 @@ def main(argv: List[str] = None) -> int:
                     else robot_map.set_full(grid_from_msg(msg))
             except GridError:
                 continue
-    except Exception as e:   # a bag broken part of the way
-        print(f'status_errors: cannot read {args.bag}: {e}', file=sys.stderr)
+    except Exception as e:   # a missing or broken bag (also one broken part of the way) or summary
+        print(f'status_errors: cannot read {args.bag} or {args.summary}: {e}', file=sys.stderr)
         return 2
     grids = {name: m.snapshot() for name, m in maps.items()}
     timeline = PlacementTimeline(args.degrees, args.cm / 100.0)

@@ -124,16 +124,15 @@ def keep_standing(result: 'Estimate', published: Optional[Sequence[Optional[np.n
     if result.standing is None or published is None or preferred_reference is None:
         return False
     members, links = result.standing
-    shown_before = [k for k in members if k < len(published) and published[k] is not None]
-    if len(shown_before) <= sum(t is not None for t in result.transforms):
+    kept = {k for k in members if k < len(published) and published[k] is not None}
+    shown = sum(t is not None for t in result.transforms)
+    if len(kept) <= shown:
         return False
     log.debug('a group of %d grids around grid %d outgrew the published one, its new placements held: %d grids '
-              'published around grid %d', sum(t is not None for t in result.transforms) + result.held,
-              result.reference, len(shown_before), preferred_reference)
+              'published around grid %d', shown + result.held, result.reference, len(kept), preferred_reference)
     chosen_seed = result.reference
-    result.transforms = [members.get(k) if k in shown_before else None for k in range(len(result.transforms))]
+    result.transforms = [members[k] if k in kept else None for k in range(len(result.transforms))]
     result.reference = preferred_reference
-    kept = set(shown_before)
     result.pairs = [link for link in links if link.i in kept] + [p for p in result.pairs if p.i not in kept]
     # the chosen group's seed, and the standing group's new members, wait like the placements held
     for k in [chosen_seed, *members]:

@@ -335,11 +335,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
     pairs = list(chosen.links.values()) + [m for k, m in grower.refused.items() if k not in chosen.members]
     pairs += [c.match for c in checks if c.transform is None and c.k not in chosen.members
               and c.k not in grower.refused]
-    if standing is not None and preferred_reference not in chosen.members:
-        to_reference = tf.inverse(standing[0][preferred_reference])
-        standing = ({k: to_reference @ t for k, t in standing[0].items() if k not in chosen.members}, standing[1])
-    else:
-        standing = None
+    # the tracked group is seeded by the preferred reference: its placements are in that reference's frame
+    standing = ({k: t for k, t in standing[0].items() if k not in chosen.members}, standing[1]) \
+        if standing is not None and preferred_reference not in chosen.members else None
     seconds = time.perf_counter() - t0
     for g in sorted(groups, key=lambda g: -len(g.members)):
         if g is not chosen and len(g.members) > 1:
