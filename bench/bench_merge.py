@@ -225,6 +225,9 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
     return time.perf_counter() - t0
 
 
+MERGE_OPTIONS: List[str] = []   # more options of merge_maps (--no-processes)
+
+
 def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, seed: int = 0) -> Optional[dict]:
     """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
     with the shared scorer; None if the scorer is missing or a step failed. With log, merge_maps runs with -v and
@@ -238,7 +241,7 @@ def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, see
     result = out_dir / 'result.json'
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
     merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
-             '--output', str(out_dir / 'merged'), '--seed', str(seed), *(['-v'] if log else []),
+             '--output', str(out_dir / 'merged'), '--seed', str(seed), *(['-v'] if log else []), *MERGE_OPTIONS,
              *(str(folder / m['file']) for m in truth['maps'])]
     print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
     with open(log, 'w') if log else open(os.devnull, 'w') as err:
@@ -461,6 +464,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--data', type=Path, default=REPO / '..' / 'shared' / 'data' / 'dev')
     ap.add_argument('--repeat', type=int, default=3)
+    ap.add_argument('--no-processes', action='store_true',
+                    help='merge_maps --no-processes: the matches on threads (to compare with the worker processes)')
     ap.add_argument('--quick', action='store_true', help='only the 2- and 4-map rows, 1 repeat')
     ap.add_argument('--markdown', type=Path, help='also write the table as Markdown to this file')
     ap.add_argument('--curve', action='store_true',
@@ -486,6 +491,8 @@ def main() -> int:
                          'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
     ap.add_argument('--row', choices=list(ROWS) + list(GENERATED_ROWS), help=argparse.SUPPRESS)   # internal
     args = ap.parse_args()
+    if args.no_processes:
+        MERGE_OPTIONS.append('--no-processes')
     if args.large36 or args.row in GENERATED_ROWS:
         ROWS.update(GENERATED_ROWS)
     if args.generated:

@@ -8,8 +8,10 @@
 It starts its own roscore (on a free port), a publisher process for the robots of the large dev scenario
 (../shared/data/dev/large30_hospital_section, or --data) and the map_merge node, then measures from outside:
   * merged maps: received per second on the merged topic (overall, and the lowest 10 s window), longest gap;
-  * node CPU in cores: utime + stime of the node process (/proc), overall and per sampling interval;
-  * node memory: RSS sampled over time, its peak (VmHWM), the RSS growth over the second half of the run;
+  * node CPU in cores: utime + stime of the node process and the processes under it (its estimation's workers;
+    /proc), overall and per sampling interval;
+  * node memory: RSS of the node and the processes under it sampled over time, the node's own peak (VmHWM), the
+    RSS growth over the second half of the run;
   * estimation time: `estimation_time` of every ~status, and how many robots the last one includes;
   * wrong placements: every ~status's placements scored by the shared scorer (../shared/eval/score.py) against the
     scenario's truth: robots included but placed wrong (a broken map placed consistently with one of its parts is
@@ -171,17 +173,50 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _stat(pid: int) -> List[str]:
+    return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+
+
+def process_tree(pid: int) -> List[int]:
+    """The process and every process under it (the estimation's worker processes and their server)."""
+    children: Dict[int, List[int]] = {}
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            try:
+                children.setdefault(int(_stat(int(entry.name))[1]), []).append(int(entry.name))   # ppid
+            except (OSError, IndexError, ValueError):
+                pass   # ended meanwhile
+    tree, todo = [], [pid]
+    while todo:
+        tree.append(todo.pop())
+        todo += children.get(tree[-1], [])
+    return tree
+
+
 def proc_cpu_seconds(pid: int) -> float:
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK   # utime, stime (fields 14, 15 of stat)
+    """CPU of the process and of the processes under it, the children they have waited for included."""
+    ticks = 0
+    for p in process_tree(pid):
+        try:
+            fields = _stat(p)
+        except OSError:
+            continue   # ended meanwhile
+        ticks += sum(int(f) for f in fields[11:15])   # utime, stime, cutime, cstime (fields 14-17 of stat)
+    return ticks / CLK_TCK
 
 
 def proc_memory_mib(pid: int) -> Dict[str, float]:
-    out = {}
-    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
-        key = line.split(':', 1)[0]
-        if key in ('VmRSS', 'VmHWM'):
-            out[key] = int(line.split()[1]) / 1024.0
+    """VmRSS: of the process and the processes under it; VmHWM: the process's own peak."""
+    out = {'VmRSS': 0.0}
+    for p in process_tree(pid):
+        try:
+            lines = Path(f'/proc/{p}/status').read_text().splitlines()
+        except OSError:
+            continue
+        for line in lines:
+            key = line.split(':', 1)[0]
+            if key == 'VmRSS' or key == 'VmHWM' and p == pid:
+                out[key] = out.get(key, 0.0) + int(line.split()[1]) / 1024.0
     return out
 
 

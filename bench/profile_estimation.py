@@ -1,17 +1,17 @@
 #!/usr/bin/env python3
-"""Where one estimation's time goes, and what its two threads gain (not a test: it prints figures).
+"""Where one estimation's time goes, and what a second core gives it (not a test: it prints figures).
 
     scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases]
 
 MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
-estimation runs serially (its thread pools replaced by loops, OpenCV on one thread) under cProfile, and the time of
-its parts is printed: ICP, the verification of candidates, descriptor distances, the correlation search, the
-polish, detection, RANSAC. With --threads-gain it also prints the wall time of the serial estimation alone, of the
-estimation on its threads (the default settings), and of two serial estimations in two processes at once: what
-the second core gives to threads (which hold the GIL in turn) and to processes. With --phases it also prints where
-the wall time of an estimation on its threads goes, as its main thread sees it: waiting for the batches of matches
-that run on the threads, and the work it does alone (group matches, single-grid searches, the search of the maps left
-out and the relaxation at the end, the rest).
+estimation runs serially (its thread pools replaced by loops, no worker processes, OpenCV on one thread) under
+cProfile, and the time of its parts is printed: ICP, the verification of candidates, descriptor distances, the
+correlation search, the polish, detection, RANSAC. With --threads-gain it also prints the wall time of the serial
+estimation alone, of the estimation with its defaults (matches on worker processes), and of two serial estimations
+in two processes at once: what the second core can give. With --phases it also prints where the wall time of an
+estimation with its defaults goes, as its main thread sees it: waiting for the batches of matches and the group
+matches made ahead (both on the workers), and the work it does alone (group matches, single-grid searches, the
+search of the maps left out and the relaxation at the end, the rest).
 """
 from __future__ import annotations
 
@@ -33,19 +33,20 @@ PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')
          ('detection', ('~', 'detectAndCompute')),
          ('RANSAC', ('hypotheses.py', 'ransac_rigid'))]
 
-# the main thread's phases of an estimation on its threads: (label, (file suffix, function), callers (file suffix,
-# function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the pool is the time
+# the main thread's phases of an estimation with its defaults: (label, (file suffix, function), callers (file suffix,
+# function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the workers is the time
 # spent waiting for its results
-PHASES = [('batches of matches on the threads', ('_base.py', 'result_iterator'),
+PHASES = [('batches of matches in parallel', ('workers.py', 'match_all'),
            [('growth.py', 'grow'), ('stronger.py', 'of'), ('growth.py', 'confirm_searches')]),
           ('preparing the grids', ('_base.py', 'result_iterator'), [('estimator.py', '_estimate')]),
           ('group matches (searches included)', ('growth.py', '_match_groups'), None),
+          ('group matches made ahead, in parallel', ('growth.py', '_match_ahead'), None),
           ('single-grid searches', ('growth.py', '_search'), None),
           ('the maps left out searched again', ('growth.py', 'search_left_out'), None),
           ('the final relaxation', ('estimator.py', 'relax_group'), None)]
 
-# one estimation of the maps in a folder; serial: pools replaced by loops, OpenCV on one thread; profile: the
-# file cProfile writes to ('' for none); prints the wall time in s
+# one estimation of the maps in a folder; serial: pools replaced by loops, no worker processes, OpenCV on one
+# thread; profile: the file cProfile writes to ('' for none); prints the wall time in s
 ONE = '''
 import cProfile, glob, sys, time
 sys.path.insert(0, {root!r})
@@ -63,7 +64,7 @@ if serial:
     cv2.setNumThreads(1)
     estimator.ThreadPoolExecutor = search.ThreadPoolExecutor = Loop
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
-settings = EstimationSettings()
+settings = EstimationSettings(processes=not serial)
 wall = time.perf_counter()
 if profile:
     cProfile.run('estimator.estimate(grids, settings)', profile)
@@ -103,8 +104,8 @@ def cumulative(stats: dict, suffix: str, name: str, callers=None) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
-    ap.add_argument('--threads-gain', action='store_true', help='also time threads and two processes')
-    ap.add_argument('--phases', action='store_true', help='also split an estimation on its threads into phases')
+    ap.add_argument('--threads-gain', action='store_true', help='also time the defaults and two processes')
+    ap.add_argument('--phases', action='store_true', help='also split an estimation with its defaults into phases')
     args = ap.parse_args()
     if not glob.glob(str(args.maps / 'map_*.yaml')):
         sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
@@ -118,19 +119,19 @@ def main() -> None:
     if args.phases:
         total = seconds(run(args.maps, False, str(out)))
         stats = pstats.Stats(str(out)).stats
-        print(f'{args.maps.name}: on its threads {total:.2f} s (its main thread under cProfile)')
+        print(f'{args.maps.name}: with its defaults {total:.2f} s (its main thread under cProfile)')
         shown = 0.0
         for label, (suffix, name), callers in PHASES:
             spent = cumulative(stats, suffix, name, callers)
             shown += spent
-            print(f'  {label:34s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
-        print(f'  {"the rest, on the main thread":34s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
+            print(f'  {label:38s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
+        print(f'  {"the rest, on the main thread":38s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
     if args.threads_gain:
         alone = seconds(run(args.maps, True))
         threads = seconds(run(args.maps, False))
         both = [run(args.maps, True), run(args.maps, True)]
         two = [seconds(p) for p in both]
-        print(f'  serial {alone:.2f} s; on the threads {threads:.2f} s ({alone / threads:.2f} x); '
+        print(f'  serial {alone:.2f} s; with its defaults {threads:.2f} s ({alone / threads:.2f} x); '
               f'two serial ones in two processes at once {two[0]:.2f} and {two[1]:.2f} s '
               f'({2 * alone / max(two):.2f} x the work per second)')
 

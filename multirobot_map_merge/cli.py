@@ -82,7 +82,10 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     ap.add_argument('--output', default='merged', metavar='PREFIX', help='merged map PREFIX.pgm/.yaml')
     ap.add_argument('--png', metavar='FILE', help='PNG preview (default PREFIX.png)')
     ap.add_argument('--transforms-json', metavar='FILE', help='write each map\'s placement as JSON')
-    ap.add_argument('--threads', type=int, default=defaults.threads, help='pairs matched in parallel')
+    ap.add_argument('--threads', type=int, default=defaults.threads,
+                    help='pairs matched in parallel (default %(default)s): on as many worker processes')
+    ap.add_argument('--no-processes', dest='processes', action='store_false',
+                    help='match the pairs on threads of this process instead of worker processes')
     ap.add_argument('--seed', type=int, default=defaults.seed,
                     help='seed of the random sampling (RANSAC, point subsets; default %(default)s): the same maps and '
                          'seed give the same merge')
@@ -178,7 +181,7 @@ def warn_unused(maps: Sequence[str], pipeline: MergingPipeline) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = EstimationSettings(feature=args.feature, confidence=args.confidence, threads=max(args.threads, 1),
-                                  seed=args.seed, free_threshold=args.free_threshold,
+                                  processes=args.processes, seed=args.seed, free_threshold=args.free_threshold,
                                   occupied_threshold=args.occupied_threshold)
     try:
         settings.validate()

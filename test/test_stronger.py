@@ -15,6 +15,7 @@ from multirobot_map_merge.estimation.estimator import estimate
 from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.pair import match_pair
 from multirobot_map_merge.estimation.settings import EstimationSettings
+from multirobot_map_merge.estimation.workers import ParallelMatcher
 from multirobot_map_merge.estimation.stronger import AGREEMENT_MARGIN, WEAK_AGREEMENT, PairEvidence, \
     stronger_elsewhere
 from multirobot_map_merge.mapio import load_map
@@ -48,13 +49,13 @@ def test_a_weak_alias_waits_for_the_stronger_pair(hall):
     assert partner.accepted and partner.best.agreement >= alias.best.agreement + AGREEMENT_MARGIN
     rot, dist = _off(partner.transform_m, poses, LOST, PARTNER)
     assert rot < 0.5 and dist < 0.1
-    with ThreadPoolExecutor(2) as pool:
+    with ThreadPoolExecutor(2) as pool, ParallelMatcher(s, pool) as matcher:
         # onto a union the pairs matched already count, and none is yet
-        evidence = PairEvidence(prepared, s, pool)
+        evidence = PairEvidence(prepared, matcher)
         assert stronger_elsewhere(alias, evidence, [ALIAS, PARTNER], s, compute=False) is None
         evidence.put(partner)
         assert stronger_elsewhere(alias, evidence, [ALIAS, PARTNER], s, compute=False).startswith('waits')
-        evidence = PairEvidence(prepared, s, pool)
+        evidence = PairEvidence(prepared, matcher)
         why = stronger_elsewhere(alias, evidence, [ALIAS, PARTNER], s)
         assert why is not None and why.startswith(f'waits: as a pair with grid {PARTNER}')
         # the partner's evidence does not count (a map taken out of the merge): the alias stands on its own

@@ -36,6 +36,7 @@ from .relax import FINAL, relax
 from .settings import EstimationSettings
 from .tracking import track
 from .union import known_corners
+from .workers import ParallelMatcher
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 
@@ -280,12 +281,12 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
     res = working_resolution(grids, settings)
     usable = [g if g is not None and not g.is_empty() else None for g in grids]
     transforms: List[Optional[np.ndarray]] = [None] * len(grids)
-    with ThreadPoolExecutor(max_workers=settings.threads) as pool:
+    with ThreadPoolExecutor(max_workers=settings.threads) as pool, ParallelMatcher(settings, pool) as matcher:
         prepared = list(pool.map(lambda g: cache.get(g, res, settings.feature) if g is not None else None, usable))
         present = [k for k, p in enumerate(prepared) if p is not None]
         if not present:
             return Estimate(transforms, None, seconds=time.perf_counter() - t0)
-        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress, memory, names)
+        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress, memory, names, matcher)
         groups: List[Group] = []
         checks = []
         if preferred_reference in present and previous is not None and len(previous) == len(grids) \

@@ -69,6 +69,16 @@ class PreparedGrid:
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
     derived: dict = field(default_factory=dict, repr=False, compare=False)   # what later stages derive, kept
 
+    def __getstate__(self) -> dict:
+        # sent to the matching processes (workers.py): without the lock, which the copy gets afresh
+        state = dict(self.__dict__)
+        del state['_lock']
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+
     @property
     def known_pixels(self) -> int:
         return int((self.work >= 0).sum())

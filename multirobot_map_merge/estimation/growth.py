@@ -26,7 +26,6 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
-from .neighbours import NeighbourCache
 from .pair import SEARCH_POSTPONED, PairMatch, match_pair
 from .settings import EstimationSettings
 from .eviction import MIN_AGREEING, contradicted_members, judge_members
@@ -34,6 +33,7 @@ from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .verify import Placement, overlap_found, plausible, refusal, verify
+from .workers import MatchCall, ParallelMatcher
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement must share with the merge
@@ -115,7 +115,7 @@ class Grower:
     def __init__(self, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
                  settings: EstimationSettings, pool: Executor, reference: Optional[int],
                  progress: Optional[Progress], memory: Optional[EstimationMemory] = None,
-                 names: Optional[Sequence] = None):
+                 names: Optional[Sequence] = None, matcher: Optional[ParallelMatcher] = None):
         self.grids, self.prepared, self.res, self.s, self.pool = grids, prepared, res, settings, pool
         self.reference = reference
         self.progress = progress
@@ -141,8 +141,11 @@ class Grower:
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
         self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
-        self.neighbours = NeighbourCache()   # descriptor distances of this estimation's matches
-        self.pair_evidence = PairEvidence(prepared, settings, pool, self.neighbours)   # stronger.py
+        # the batches of matches run in parallel (workers.py); its descriptor distances serve this estimation's
+        # other matches too (neighbours.py)
+        self.matcher = matcher if matcher is not None else ParallelMatcher(settings, pool)
+        self.neighbours = self.matcher.neighbours
+        self.pair_evidence = PairEvidence(prepared, self.matcher)   # stronger.py
         # search_left_out's: where its last search placed each grid (None: nowhere), the members taken out and the
         # members' footprints as of its last call
         self.left_out_boxes: Dict[int, Optional[Box]] = {}
@@ -193,6 +196,9 @@ class Grower:
         return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
                           onto_union=len(group.members) > 1, descriptors=not search, neighbours=self.neighbours)
 
+    def _onto(self, k: int, group: Group, union: PreparedGrid, **options) -> MatchCall:
+        return MatchCall(k, group.seed, self.prepared[k], union, dict(onto_union=len(group.members) > 1, **options))
+
     def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
         search=False, by descriptors alone)."""
@@ -203,7 +209,8 @@ class Grower:
                 members = frozenset(self.names[m] for m in group.members)
                 for k in batch:
                     self.tried[(k, id(group))] = group.union.version
-                results = list(self.pool.map(lambda k: self.match(k, group, search=False), batch))
+                union = group.union.prepared()
+                results = self.matcher.match_all([self._onto(k, group, union, search=False) for k in batch])
                 if len(group.members) == 1:
                     for m in results:
                         self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
@@ -453,10 +460,17 @@ class Grower:
             changed = False
             groups.sort(key=lambda g: -len(g.members))
             for a in range(len(groups)):
+                big = groups[a]
+
+                def matched(small: Group) -> bool:
+                    # a single grid matched against this union already
+                    return len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version
+
                 for b in range(a + 1, len(groups)):
-                    big, small = groups[a], groups[b]
-                    if len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version:
-                        continue   # a single grid was matched against this union already
+                    small = groups[b]
+                    if matched(small):
+                        continue
+                    self._match_ahead(big, [g for g in groups[b:] if not matched(g)][:self.s.threads])
                     m = self._match_groups(small, big)
                     if m.accepted and not (len(small.members) == 1 and self._waits(m, set(big.members))):
                         # the merged frame stays that of the preferred reference's group
@@ -612,9 +626,9 @@ class Grower:
         for _ in range(LEFT_OUT_ROUNDS):
             members = frozenset(group.members)
             started = time.perf_counter()
-            matches = list(self.pool.map(lambda k: match_pair(k, group.seed, self.prepared[k], union, self.s,
-                                                              onto_union=True, descriptors=False,
-                                                              neighbours=self.neighbours), todo)) + placed
+            matches = self.matcher.match_all([MatchCall(k, group.seed, self.prepared[k], union,
+                                                        dict(onto_union=True, descriptors=False))
+                                              for k in todo]) + placed
             self.search_seconds += time.perf_counter() - started
             joining = []
             for m in matches:
@@ -686,26 +700,53 @@ class Grower:
         self.refused[j] = PairMatch(j, group.seed, reason=why)
         self.evicted.add(j)
 
+    def _group_match_kept(self, small: Group, big: Group) -> Optional[PairMatch]:
+        """The last match of the two groups if their unions have not changed since (merge_groups is called again as
+        groups form); one made before the budget was spent stands after it too."""
+        last = self.group_matches.get((id(small), id(big)))
+        if last is None or last[0] is not small or last[1] is not big:
+            return None
+        versions, spent = last[2]
+        if versions != (small.union.version, big.union.version) or \
+                (spent and self.search_seconds < self.s.search_budget_s):
+            return None
+        return last[3]
+
+    def _group_call(self, small: Group, big: Group, spent: bool) -> MatchCall:
+        # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
+        # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map
+        # that contradicts its members, so such a contradiction says nothing about where the groups overlap;
+        # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
+        # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
+        # placement or a rival that makes the match ambiguous
+        return MatchCall(small.seed, big.seed, small.union.prepared(), big.union.prepared(),
+                         dict(onto_union=len(big.members) > 1, between_groups=True, search_spent=spent))
+
+    def _keep_group_match(self, small: Group, big: Group, spent: bool, m: PairMatch) -> None:
+        self.group_matches[(id(small), id(big))] = (small, big, ((small.union.version, big.union.version), spent), m)
+
+    def _match_ahead(self, big: Group, smalls: List[Group]) -> None:
+        """Match the groups of `smalls` that merge_groups will match onto `big` next, at once (in parallel): most
+        such matches are refused, and one that is accepted changes the big union for the rest, whose matches are
+        made again (at most `threads` - 1 matches in vain)."""
+        todo = [g for g in smalls if self._group_match_kept(g, big) is None]
+        if len(todo) < 2 or self.search_seconds >= self.s.search_budget_s:
+            return
+        started = time.perf_counter()
+        for g, m in zip(todo, self.matcher.match_all([self._group_call(g, big, False) for g in todo])):
+            self._keep_group_match(g, big, False, m)
+        self.search_seconds += time.perf_counter() - started
+
     def _match_groups(self, small: Group, big: Group) -> PairMatch:
         self.tried[(small.seed, id(big))] = big.union.version
-        spent = self.search_seconds >= self.s.search_budget_s
-        state = (small.union.version, big.union.version, spent)
-        last = self.group_matches.get((id(small), id(big)))
-        if last is not None and last[0] is small and last[1] is big and last[2] == state:
-            m = last[3]   # the same two unions, refused before (merge_groups is called again as groups form)
-        else:
-            # two unions of a repetitive building: descriptors often find a wide placement that agrees in part (the
-            # far end of a corridor), while the true, smaller overlap only the search finds; a group holds no map
-            # that contradicts its members, so such a contradiction says nothing about where the groups overlap;
-            # with the budget spent, a match that needs the search waits for a later estimation (search_spent): the
-            # descriptors' candidates alone, rescued by the polish, could pass where the search finds a better
-            # placement or a rival that makes the match ambiguous
+        m = self._group_match_kept(small, big)
+        if m is None:
+            spent = self.search_seconds >= self.s.search_budget_s
             started = time.perf_counter()
-            m = match_pair(small.seed, big.seed, small.union.prepared(), big.union.prepared(), self.s,
-                           onto_union=len(big.members) > 1, between_groups=True, search_spent=spent,
-                           neighbours=self.neighbours)
+            call = self._group_call(small, big, spent)
+            m = match_pair(call.i, call.j, call.pi, call.pj, self.s, neighbours=self.neighbours, **call.options)
             self.search_seconds += time.perf_counter() - started
-            self.group_matches[(id(small), id(big))] = (small, big, state, m)
+            self._keep_group_match(small, big, spent, m)
         if m.reason == SEARCH_POSTPONED:
             self.postponed += 1
         return m

@@ -29,9 +29,12 @@ class NeighbourCache:
         self._items: Dict[Tuple[int, int], tuple] = {}
         self._lock = threading.Lock()
 
+    def key(self, query: np.ndarray, train: np.ndarray) -> tuple:
+        return id(query), id(train)
+
     def nearest(self, query: np.ndarray, train: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """(distances, indices), each (len(query), min(K, len(train))), nearest first."""
-        key = (id(query), id(train))
+        key = self.key(query, train)
         with self._lock:
             hit = self._items.get(key)
         if hit is not None:

@@ -22,6 +22,9 @@ STAGES = (FeatureSettings, HypothesisSettings, RefineSettings, AcceptanceSetting
 class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, HypothesisSettings, FeatureSettings):
     # the fields of the stages come first, in the order of STAGES (dataclasses collect them from the last base)
     threads: int = 2                  # pairs matched in parallel
+    # the batches of matches run on `threads` worker processes (workers.py), else on threads (which the GIL holds
+    # back: a second thread adds 0.14 of a core's work, a second process a whole core's)
+    processes: bool = True
     # a member that the maps left out single out leaves the merge (eviction.py): for one estimation of final maps
     # (merge_maps); the node turns it off (see ros/params.py)
     evict: bool = True

@@ -16,13 +16,12 @@ weakly with every map (furniture moved between two passes) has no stronger pair 
 """
 from __future__ import annotations
 
-from concurrent.futures import Executor
 from typing import Callable, Dict, Iterable, Optional, Sequence, Tuple
 
 from .features import PreparedGrid
-from .neighbours import NeighbourCache
-from .pair import PairMatch, match_pair
+from .pair import PairMatch
 from .settings import EstimationSettings
+from .workers import MatchCall, ParallelMatcher
 
 WEAK_AGREEMENT = 0.99     # below this an accepted match is checked against the grid's pairs
 AGREEMENT_MARGIN = 0.01   # a pair agreeing this much better (with more support) is the stronger evidence
@@ -30,11 +29,10 @@ FEW_MEMBERS = 3           # a weak match onto this many grids or fewer is checke
 
 
 class PairEvidence:
-    """Descriptor matches of pairs of grids, each computed once per estimation (in parallel on `pool`)."""
+    """Descriptor matches of pairs of grids, each computed once per estimation (in parallel, by `matcher`)."""
 
-    def __init__(self, prepared: Sequence[Optional[PreparedGrid]], settings: EstimationSettings, pool: Executor,
-                 neighbours: Optional[NeighbourCache] = None):
-        self.prepared, self.s, self.pool, self.neighbours = prepared, settings, pool, neighbours
+    def __init__(self, prepared: Sequence[Optional[PreparedGrid]], matcher: ParallelMatcher):
+        self.prepared, self.s, self.matcher = prepared, matcher.s, matcher
         self._matches: Dict[Tuple[int, int], PairMatch] = {}
 
     def put(self, m: PairMatch) -> None:
@@ -46,9 +44,8 @@ class PairEvidence:
         for those matched already)."""
         others = list(others)
         todo = [x for x in others if (k, x) not in self._matches] if compute else []
-        for m in self.pool.map(lambda x: match_pair(k, x, self.prepared[k], self.prepared[x], self.s, search=False,
-                                                  neighbours=self.neighbours),
-                               todo):
+        for m in self.matcher.match_all([MatchCall(k, x, self.prepared[k], self.prepared[x], dict(search=False))
+                                         for x in todo]):
             self._matches[(k, m.j)] = m
         return {x: self._matches[(k, x)] for x in others if (k, x) in self._matches}
 

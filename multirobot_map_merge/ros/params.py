@@ -55,6 +55,8 @@ class MapMergeParams:
     occupied_threshold: int = _p(OCCUPIED_THRESHOLD, 'extra: lowest occupancy (0..100) read as a wall when maps are '
                                                      'matched; the values between the two thresholds (a probabilistic '
                                                      'map\'s uncertain cells, e.g. Cartographer\'s) count as unknown')
+    estimation_processes: bool = _p(True, 'extra: the estimation matches maps on 2 worker processes, which use both '
+                                          'cores where threads take turns; false: on threads of the node')
     max_merged_cells: int = _p(1 << 24, 'extra: largest merged grid (cells); a robot whose map or placement would '
                                         'make it larger is left out of that cycle with a warning (1..2^28)')
 
@@ -108,7 +110,7 @@ class MapMergeParams:
         return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence,
                                   search_budget_s=SEARCH_BUDGET, free_threshold=self.free_threshold,
                                   occupied_threshold=self.occupied_threshold, evict=False, relax_final=False,
-                                  search_left_out=False)
+                                  search_left_out=False, processes=self.estimation_processes)
 
 
 _ANNOT = {'float': float, 'bool': bool, 'str': str, 'int': int}

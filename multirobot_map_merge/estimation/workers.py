@@ -1,0 +1,254 @@
+"""Matches of pairs in parallel: on worker processes, which the GIL does not hold back, or on threads.
+
+A match is mostly short numpy and OpenCV calls between Python steps, so two threads hold the GIL in turn: on the
+generated 36-map buildings a second thread added 0.14 of a core's work, a second process a whole core's.
+`ParallelMatcher.match_all` runs a batch of `match_pair` calls (the growth's descriptor matches, the searches of
+the maps left out, the pair evidence, the group matches made ahead) on a pool of worker processes started by the
+`forkserver`: a forked child of a process whose OpenCV threads have run can deadlock, and the server forks before
+any has. The grids of a batch reach the workers through files (in /dev/shm where there is one), each written once
+(again only if it was removed to keep the files within FILES_KEPT_BYTES) and read once by each worker that needs
+it; a worker keeps the last LOADED_KEPT it read, with what its matches derive from them, and its own descriptor
+distances (neighbours.py), known by the descriptors' content. The largest grids go first, so that a batch ends on
+short matches. A batch the pool cannot run (a worker killed) runs on the threads instead, and the pool is started
+again for the next one; a worker ends itself when the estimating process has gone, and removes its files.
+
+A program that uses the estimation with processes must guard its main code with `if __name__ == '__main__':`, as
+multiprocessing requires: a worker imports the main module.
+"""
+from __future__ import annotations
+
+import atexit
+import hashlib
+import logging
+import multiprocessing
+import os
+import pickle
+import shutil
+import tempfile
+import threading
+import time
+from collections import OrderedDict
+from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from .features import PreparedGrid
+from .neighbours import NeighbourCache
+from .pair import PairMatch, match_pair
+from .settings import EstimationSettings
+
+log = logging.getLogger('rosout.multirobot_map_merge.estimation.workers')
+
+WATCH_PERIOD_S = 1.0   # how often a worker checks that the estimating process is still there
+LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its grids, one at a time each)
+# the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is 20-25 bytes a pixel at the
+# working resolution (its fields), 4 MB for the median map of the generated 36-map buildings, 16 MB for a large
+# union; an estimation there wrote 1.7 GB in all
+FILES_KEPT_BYTES = 256 * 2 ** 20
+
+
+@dataclass
+class MatchCall:
+    """match_pair(i, j, pi, pj, settings, **options): what one match of a batch needs."""
+    i: int
+    j: int
+    pi: PreparedGrid
+    pj: PreparedGrid
+    options: Dict[str, object] = field(default_factory=dict)
+
+
+class ContentNeighbourCache(NeighbourCache):
+    """A worker's descriptor distances: the arrays arrive as copies, so they are known by their content."""
+
+    def key(self, query: np.ndarray, train: np.ndarray) -> tuple:
+        return _digest(query), _digest(train)
+
+
+def _digest(a: np.ndarray) -> bytes:
+    return hashlib.blake2b(np.ascontiguousarray(a).data, digest_size=16).digest() + repr(a.shape).encode()
+
+
+# --- in a worker process ---------------------------------------------------------------------------------------
+
+_worker_estimation: Optional[str] = None
+_worker_grids: 'OrderedDict[str, PreparedGrid]' = OrderedDict()
+_worker_neighbours = ContentNeighbourCache()
+
+
+def _start_worker(estimating: int) -> None:
+    cv2.setNumThreads(1)   # one core each: the pool has a worker per core it may use
+    threading.Thread(target=_watch, args=(estimating,), name='watch', daemon=True).start()
+
+
+def _watch(estimating: int) -> None:
+    """End this worker when the estimating process has gone (killed: nothing told the pool), and remove the files
+    of its estimation."""
+    while True:
+        time.sleep(WATCH_PERIOD_S)
+        try:
+            os.kill(estimating, 0)
+        except ProcessLookupError:
+            if _worker_estimation is not None:
+                shutil.rmtree(_worker_estimation, ignore_errors=True)
+            os._exit(0)
+        except OSError:
+            pass   # alive, another user's
+
+
+def _load(path: str) -> PreparedGrid:
+    grid = _worker_grids.get(path)
+    if grid is None:
+        with open(path, 'rb') as f:
+            grid = pickle.load(f)
+        _worker_grids[path] = grid
+        while len(_worker_grids) > LOADED_KEPT:
+            _worker_grids.popitem(last=False)
+    else:
+        _worker_grids.move_to_end(path)
+    return grid
+
+
+def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, settings: EstimationSettings,
+                     options: dict) -> PairMatch:
+    global _worker_estimation, _worker_neighbours
+    if estimation != _worker_estimation:
+        _worker_estimation = estimation
+        _worker_grids.clear()
+        _worker_neighbours = ContentNeighbourCache()
+    return match_pair(i, j, _load(path_i), _load(path_j), settings, neighbours=_worker_neighbours, **options)
+
+
+# --- in the estimating process ---------------------------------------------------------------------------------
+
+class _Pool:
+    """The worker processes, started on first use and kept for the process's later estimations."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._executor: Optional[ProcessPoolExecutor] = None
+        self._workers = 0
+        atexit.register(self.shutdown)
+
+    def get(self, workers: int) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._executor is None or self._workers != workers:
+                self._stop(wait=False)
+                context = multiprocessing.get_context('forkserver')
+                context.set_forkserver_preload([__name__])
+                self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                                     initializer=_start_worker, initargs=(os.getpid(),))
+                self._workers = workers
+            return self._executor
+
+    def broken(self, executor: ProcessPoolExecutor) -> None:
+        with self._lock:
+            if self._executor is executor:
+                self._stop(wait=False)
+
+    def shutdown(self) -> None:
+        with self._lock:
+            self._stop(wait=True)
+
+    def _stop(self, wait: bool) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=wait, cancel_futures=True)
+            self._executor = None
+
+
+_POOL = _Pool()
+
+
+def _shared_folder() -> Optional[str]:
+    return '/dev/shm' if os.path.isdir('/dev/shm') and os.access('/dev/shm', os.W_OK) else None
+
+
+class ParallelMatcher:
+    """One estimation's parallel matches: on `settings.threads` worker processes (settings.processes), else on the
+    estimation's thread pool. A context manager: its files are removed at its end."""
+
+    def __init__(self, settings: EstimationSettings, threads: Executor,
+                 neighbours: Optional[NeighbourCache] = None) -> None:
+        self.s, self.threads = settings, threads
+        self.neighbours = neighbours if neighbours is not None else NeighbourCache()
+        self.processes = settings.processes and settings.threads > 1
+        self._folder: Optional[str] = None
+        # id of a grid sent -> (it, its file, the file's size), least recently used first
+        self._files: 'OrderedDict[int, Tuple[PreparedGrid, str, int]]' = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self._written = 0
+        self._worker_settings = settings.replace(threads=1)   # a worker's search runs on its own core
+
+    def __enter__(self) -> 'ParallelMatcher':
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._folder is not None:
+            shutil.rmtree(self._folder, ignore_errors=True)
+        self._files.clear()
+        return False
+
+    def match_all(self, calls: Sequence[MatchCall]) -> List[PairMatch]:
+        """The matches of `calls`, in their order."""
+        if len(calls) > 1 and self.processes:
+            executor = _POOL.get(self.s.threads)
+            try:
+                return self._on_processes(executor, calls)
+            except (BrokenProcessPool, OSError) as e:
+                log.warning('the matching processes failed (%s): this batch runs on threads', e)
+                _POOL.broken(executor)
+        return list(self.threads.map(lambda c: match_pair(c.i, c.j, c.pi, c.pj, self.s, neighbours=self.neighbours,
+                                                          **c.options), calls))
+
+    def _on_processes(self, executor: ProcessPoolExecutor, calls: Sequence[MatchCall]) -> List[PairMatch]:
+        grids = {id(g): g for c in calls for g in (c.pi, c.pj)}
+        # detection left for later (features.prepare(lazy=True)) is done here, once, not in each worker
+        list(self.threads.map(lambda g: g.describe(), [g for g in grids.values() if g.keypoints is None]))
+        paths = dict(zip(grids, self.threads.map(self._path, grids.values())))
+        # the largest first: the batch ends on short matches, not on a long one alone on the pool
+        order = sorted(range(len(calls)), key=lambda n: -len(calls[n].pi.walls))
+        futures = {n: executor.submit(_match_in_worker, self._folder, calls[n].i, calls[n].j,
+                                      paths[id(calls[n].pi)], paths[id(calls[n].pj)], self._worker_settings,
+                                      calls[n].options) for n in order}
+        try:
+            return [futures[n].result() for n in range(len(calls))]
+        finally:
+            self._remove_unused(grids)
+
+    def _path(self, grid: PreparedGrid) -> str:
+        with self._lock:
+            sent = self._files.get(id(grid))
+            if sent is not None and sent[0] is grid:
+                self._files.move_to_end(id(grid))
+                return sent[1]
+            if self._folder is None:
+                self._folder = tempfile.mkdtemp(prefix='map_merge_', dir=_shared_folder())
+            self._written += 1
+            path = os.path.join(self._folder, f'{self._written}.pickle')
+        with open(path, 'wb') as f:
+            pickle.dump(grid, f, protocol=pickle.HIGHEST_PROTOCOL)
+            size = f.tell()
+        with self._lock:
+            # kept with its file: its id is not reused while the file is
+            self._files[id(grid)] = (grid, path, size)
+            self._bytes += size
+        return path
+
+    def _remove_unused(self, used: Dict[int, PreparedGrid]) -> None:
+        """Remove the files least recently used beyond FILES_KEPT_BYTES (the unions of earlier batches, mostly): a
+        grid whose file is removed is written again if a later batch needs it."""
+        with self._lock:
+            for key in list(self._files):
+                if self._bytes <= FILES_KEPT_BYTES:
+                    break
+                if key not in used:
+                    _, path, size = self._files.pop(key)
+                    self._bytes -= size
+                    try:
+                        os.remove(path)
+                    except OSError:
+                        pass

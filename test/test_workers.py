@@ -1,0 +1,128 @@
+"""The matches in worker processes (estimation/workers.py): the same placements as on threads, a worker killed on
+the way, the files removed, and no worker left behind when the estimating process is killed."""
+import json
+import logging
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from multirobot_map_merge.estimation import workers
+from multirobot_map_merge.estimation.estimator import estimate
+from multirobot_map_merge.estimation.features import prepare
+from multirobot_map_merge.estimation.neighbours import NeighbourCache
+from multirobot_map_merge.estimation.pair import match_pair
+from multirobot_map_merge.estimation.settings import EstimationSettings
+from multirobot_map_merge.mapio import load_map
+
+
+def _maps(repo_root, name='union_join'):
+    folder = repo_root / 'data' / 'samples' / name
+    truth = json.loads((folder / 'truth.json').read_text())
+    return [load_map(str(folder / m['file'])) for m in truth['maps']]
+
+
+def _same(a, b):
+    assert [t is None for t in a.transforms] == [t is None for t in b.transforms]
+    for s, t in zip(a.transforms, b.transforms):
+        if s is not None:
+            np.testing.assert_allclose(s, t, atol=1e-9)
+
+
+def test_processes_place_the_maps_as_threads_do(repo_root):
+    grids = _maps(repo_root)
+    on_threads = estimate(grids, EstimationSettings(processes=False))
+    on_processes = estimate(grids, EstimationSettings(processes=True))
+    assert sum(t is not None for t in on_threads.transforms) >= 3   # the premise: batches of several matches
+    _same(on_processes, on_threads)
+
+
+def test_a_prepared_grid_travels_whole(repo_root):
+    grid = prepare(_maps(repo_root)[0], 0.05, 'akaze')
+    copy = pickle.loads(pickle.dumps(grid))
+    for name in ('work', 'px_to_map', 'keypoints', 'descriptors', 'walls', 'wall_distance', 'nearest_wall',
+                 'free_side', 'wall_normals', 'known_depth'):
+        np.testing.assert_array_equal(getattr(copy, name), getattr(grid, name))
+    assert copy._lock is not grid._lock and copy._lock.acquire(blocking=False)
+
+
+def test_a_worker_keeps_distances_by_content(repo_root):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)[:2]]
+    a, b = grids[0].descriptors, grids[1].descriptors
+    kept = workers.ContentNeighbourCache()
+    first = kept.nearest(a, b)
+    again = kept.nearest(a.copy(), b.copy())   # copies, as each file read gives them
+    assert again[0] is first[0]
+    np.testing.assert_array_equal(first[0], NeighbourCache().nearest(a, b)[0])
+
+
+def test_a_killed_worker_leaves_its_batch_to_the_threads(repo_root, caplog):
+    grids = _maps(repo_root)
+    settings = EstimationSettings(processes=True)
+    expected = estimate(grids, EstimationSettings(processes=False))
+    executor = workers._POOL.get(settings.threads)
+    pids = {executor.submit(os.getpid).result() for _ in range(4)}
+    for pid in pids:
+        os.kill(pid, signal.SIGKILL)
+    with caplog.at_level(logging.WARNING, logger=workers.log.name):
+        result = estimate(grids, settings)
+    assert any('matching processes failed' in r.getMessage() for r in caplog.records)
+    _same(result, expected)
+    # the next batch starts the pool again
+    assert workers._POOL.get(settings.threads) is not executor
+    _same(estimate(grids, settings), expected)
+
+
+def test_the_files_of_an_estimation_are_removed(repo_root):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    settings = EstimationSettings(processes=True)
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
+        calls = [workers.MatchCall(k, 0, grids[k], grids[0], dict(search=False)) for k in (1, 2, 3)]
+        matches = matcher.match_all(calls)
+        folder = matcher._folder
+        assert folder is not None and len(os.listdir(folder)) == 4
+    assert not os.path.exists(folder)
+    for c, m in zip(calls, matches):
+        same = match_pair(c.i, c.j, c.pi, c.pj, settings, search=False)
+        assert (m.accepted, m.reason) == (same.accepted, same.reason)
+
+
+# a process that starts the workers, says their pids, and waits to be killed
+HOLDER = textwrap.dedent('''
+    import os, sys, time
+    from multirobot_map_merge.estimation import workers
+    if __name__ == '__main__':
+        executor = workers._POOL.get(2)
+        print(sorted({executor.submit(os.getpid).result() for _ in range(6)}), flush=True)
+        time.sleep(60)
+''')
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f'/proc/{pid}/stat') as f:
+        return f.read().split(')')[-1].split()[0] != 'Z'
+
+
+def test_no_worker_outlives_a_killed_estimating_process(repo_root):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(repo_root), os.environ.get('PYTHONPATH')])))
+    holder = subprocess.Popen([sys.executable, '-c', HOLDER], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        pids = json.loads(holder.stdout.readline())
+        assert pids and all(_alive(p) for p in pids)
+    finally:
+        holder.kill()
+        holder.wait()
+    deadline = time.monotonic() + 10 * workers.WATCH_PERIOD_S
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(p) for p in pids)
