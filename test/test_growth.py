@@ -350,7 +350,7 @@ def test_a_grid_found_to_contradict_some_members_is_not_searched_against_their_g
         unplaced = [3, 4]
         grower._admit(group, unplaced, [PairMatch(k, 0, reason='no rigid model') for k in unplaced])
         searched = []
-        grower.match = lambda k, g, search: searched.append(k) or PairMatch(k, g.seed, reason='none')
+        grower.match = lambda g, ks, search: [searched.append(k) or PairMatch(k, g.seed, reason='none') for k in ks]
         assert not grower._search(group, unplaced)
     assert searched == [4]
 
@@ -458,7 +458,8 @@ def test_a_failed_search_waits_for_search_again_which_a_found_overlap_does_not_s
     grower = _grower_of(grids, s)
     group = grower.group(0)
     searched = []
-    grower.match = lambda k, g, search: (searched.append(k) if search else None) or PairMatch(k, g.seed, reason='x')
+    grower.match = lambda g, ks, search: [(searched.append(k) if search else None) or PairMatch(k, g.seed, reason='x')
+                                          for k in ks]
     unplaced = [3]
     assert not grower._search(group, unplaced) and searched == [3]
     group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])   # grown by far more than
@@ -494,8 +495,10 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
         events.append(('groups', frozenset(small.members), frozenset(onto.members)))
         return PairMatch(small.seed, onto.seed, reason='none')
 
-    monkeypatch.setattr(Grower, 'match', match)
+    monkeypatch.setattr(Grower, 'match', lambda self, group, grids, search: [match(self, k, group, search)
+                                                                             for k in grids])
     monkeypatch.setattr(Grower, '_match_groups', match_groups)
+    monkeypatch.setattr(Grower, '_match_ahead', lambda self, big, smalls: None)
     groups = search_grow(grower, [merge, failed], 0)
     assert set(groups[0].members) == {0, 1, 2}
     regrouped = events.index(('groups', frozenset({4, 5}), frozenset({0, 1, 2})))

@@ -62,35 +62,46 @@ def test_a_worker_keeps_distances_by_content(repo_root):
     np.testing.assert_array_equal(first[0], NeighbourCache().nearest(a, b)[0])
 
 
+def _calls(grids):
+    return [workers.MatchCall(k, 0, grids[k], grids[0], dict(search=False)) for k in range(1, len(grids))]
+
+
+def _same_matches(matches, calls, settings):
+    for c, m in zip(calls, matches):
+        alone = match_pair(c.i, c.j, c.pi, c.pj, settings, **c.options)
+        assert (m.accepted, m.reason) == (alone.accepted, alone.reason)
+        if m.transform_m is not None:
+            np.testing.assert_allclose(m.transform_m, alone.transform_m, atol=1e-9)
+
+
 def test_a_killed_worker_leaves_its_batch_to_the_threads(repo_root, caplog):
-    grids = _maps(repo_root)
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
     settings = EstimationSettings(processes=True)
-    expected = estimate(grids, EstimationSettings(processes=False))
-    executor = workers._POOL.get(settings.threads)
-    pids = {executor.submit(os.getpid).result() for _ in range(4)}
-    for pid in pids:
-        os.kill(pid, signal.SIGKILL)
-    with caplog.at_level(logging.WARNING, logger=workers.log.name):
-        result = estimate(grids, settings)
-    assert any('matching processes failed' in r.getMessage() for r in caplog.records)
-    _same(result, expected)
-    # the next batch starts the pool again
-    assert workers._POOL.get(settings.threads) is not executor
-    _same(estimate(grids, settings), expected)
+    calls = _calls(grids)
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
+        executor = workers._POOL.get(settings.threads)
+        for pid in {executor.submit(os.getpid).result() for _ in range(4)}:
+            os.kill(pid, signal.SIGKILL)
+        with caplog.at_level(logging.WARNING, logger=workers.log.name):
+            matches = matcher.match_all(calls)
+        assert any('matching processes failed' in r.getMessage() for r in caplog.records)
+        _same_matches(matches, calls, settings)
+        # the next batch runs on a pool started again
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger=workers.log.name):
+            _same_matches(matcher.match_all(calls), calls, settings)
+        assert not caplog.records and workers._POOL.get(settings.threads) is not executor
 
 
 def test_the_files_of_an_estimation_are_removed(repo_root):
     grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
     settings = EstimationSettings(processes=True)
+    calls = _calls(grids)
     with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
-        calls = [workers.MatchCall(k, 0, grids[k], grids[0], dict(search=False)) for k in (1, 2, 3)]
-        matches = matcher.match_all(calls)
+        _same_matches(matcher.match_all(calls), calls, settings)
         folder = matcher._folder
-        assert folder is not None and len(os.listdir(folder)) == 4
+        assert folder is not None and len(os.listdir(folder)) == len(grids)
     assert not os.path.exists(folder)
-    for c, m in zip(calls, matches):
-        same = match_pair(c.i, c.j, c.pi, c.pj, settings, search=False)
-        assert (m.accepted, m.reason) == (same.accepted, same.reason)
 
 
 # a process that starts the workers, says their pids, and waits to be killed

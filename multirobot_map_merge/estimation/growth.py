@@ -190,14 +190,13 @@ class Grower:
         self._settle(len(group.members) - 1)
         return group
 
-    def match(self, k: int, group: Group, search: bool) -> PairMatch:
-        """Grid k onto the group's union: by descriptors, or (search) by the correlation search alone. A group of
-        one is matched as a pair."""
-        return match_pair(k, group.seed, self.prepared[k], group.union.prepared(), self.s, search=search,
-                          onto_union=len(group.members) > 1, descriptors=not search, neighbours=self.neighbours)
-
-    def _onto(self, k: int, group: Group, union: PreparedGrid, **options) -> MatchCall:
-        return MatchCall(k, group.seed, self.prepared[k], union, dict(onto_union=len(group.members) > 1, **options))
+    def match(self, group: Group, grids: Sequence[int], search: bool) -> List[PairMatch]:
+        """The grids onto the group's union (a group of one: as a pair), in parallel: by descriptors, or (search) by
+        the correlation search alone."""
+        union = group.union.prepared()
+        return self.matcher.match_all([MatchCall(k, group.seed, self.prepared[k], union,
+                                                 dict(onto_union=len(group.members) > 1, search=search,
+                                                      descriptors=not search)) for k in grids])
 
     def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
@@ -209,8 +208,7 @@ class Grower:
                 members = frozenset(self.names[m] for m in group.members)
                 for k in batch:
                     self.tried[(k, id(group))] = group.union.version
-                union = group.union.prepared()
-                results = self.matcher.match_all([self._onto(k, group, union, search=False) for k in batch])
+                results = self.match(group, batch, search=False)
                 if len(group.members) == 1:
                     for m in results:
                         self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
@@ -319,15 +317,17 @@ class Grower:
 
     def _search(self, group: Group, unplaced: List[int]) -> bool:
         """The correlation search, smallest grid first, on grids the union has grown for since their last search;
-        stops at the first grid it places (the others are matched against the grown union first)."""
+        stops at the first grid it places (the others are matched against the grown union first). The searches are
+        made `threads` at a time, in parallel: most fail, and those made beside one that places its grid are made
+        again against the grown union."""
         known = group.union.known_pixels
         members = frozenset(self.names[m] for m in group.members)
+        todo = []
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
             failed = (k, id(group)) in self.failed_searches
             if failed and not self.again:
                 continue   # again once the group has grown as far as it can otherwise (search_again)
-            key = (self.names[k], self.names[group.seed])
-            last = self.memory.searches.get(key)
+            last = self.memory.searches.get((self.names[k], self.names[group.seed]))
             if last is not None and self.memory.unchanged(last[0], self.grids[k]) and members >= last[2] \
                     and known < SEARCH_GROWTH * last[1]:
                 continue   # searched before (maybe in an earlier estimation), and neither has changed much since
@@ -339,18 +339,22 @@ class Grower:
                 # a repetitive building (a generated one: a map the search placed onto 12 members, whose matches
                 # onto 25 contradicted)
                 continue
+            todo.append(k)
+        for start in range(0, len(todo), self.s.threads):
             if self.search_seconds >= self.s.search_budget_s:
-                # this grid and the rest are searched in a later estimation (their memory is not updated)
+                # these grids are searched in a later estimation (their memory is not updated)
                 self.postponed += 1
                 return False
-            self.memory.searches.put(key, (self.grids[k], known, members))
             started = time.perf_counter()
-            m = self.match(k, group, search=True)
+            chunk = todo[start:start + self.s.threads]
+            matches = self.match(group, chunk, search=True)
             self.search_seconds += time.perf_counter() - started
-            if self._admit(group, unplaced, [m]):
-                self.searched.add(k)
-                return True
-            self.failed_searches.add((k, id(group)))
+            for k, m in zip(chunk, matches):
+                self.memory.searches.put((self.names[k], self.names[group.seed]), (self.grids[k], known, members))
+                if self._admit(group, unplaced, [m]):
+                    self.searched.add(k)
+                    return True
+                self.failed_searches.add((k, id(group)))
         return False
 
     def search_again(self, group: Group, unplaced: List[int]) -> None:

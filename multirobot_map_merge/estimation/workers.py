@@ -44,6 +44,7 @@ from .settings import EstimationSettings
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.workers')
 
 WATCH_PERIOD_S = 1.0   # how often a worker checks that the estimating process is still there
+STARTED_TOGETHER_S = 0.05   # a task this long on each worker makes the pool start them all at once
 LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its grids, one at a time each)
 # the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is 20-25 bytes a pixel at the
 # working resolution (its fields), 4 MB for the median map of the generated 36-map buildings, 16 MB for a large
@@ -144,6 +145,17 @@ class _Pool:
                 self._workers = workers
             return self._executor
 
+    def start(self, workers: int) -> None:
+        """Start every worker now (the pool starts one only when the others are busy), a broken pool afresh."""
+        for _ in range(2):
+            executor = self.get(workers)
+            try:
+                for _ in range(workers):
+                    executor.submit(time.sleep, STARTED_TOGETHER_S)
+                return
+            except (BrokenProcessPool, RuntimeError):
+                self.broken(executor)
+
     def broken(self, executor: ProcessPoolExecutor) -> None:
         with self._lock:
             if self._executor is executor:
@@ -175,6 +187,8 @@ class ParallelMatcher:
         self.s, self.threads = settings, threads
         self.neighbours = neighbours if neighbours is not None else NeighbourCache()
         self.processes = settings.processes and settings.threads > 1
+        if self.processes:
+            _POOL.start(settings.threads)   # while the grids are prepared
         self._folder: Optional[str] = None
         # id of a grid sent -> (it, its file, the file's size), least recently used first
         self._files: 'OrderedDict[int, Tuple[PreparedGrid, str, int]]' = OrderedDict()

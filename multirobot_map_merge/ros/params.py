@@ -55,8 +55,9 @@ class MapMergeParams:
     occupied_threshold: int = _p(OCCUPIED_THRESHOLD, 'extra: lowest occupancy (0..100) read as a wall when maps are '
                                                      'matched; the values between the two thresholds (a probabilistic '
                                                      'map\'s uncertain cells, e.g. Cartographer\'s) count as unknown')
-    estimation_processes: bool = _p(True, 'extra: the estimation matches maps on 2 worker processes, which use both '
-                                          'cores where threads take turns; false: on threads of the node')
+    estimation_processes: bool = _p(False, 'extra: true: the estimation matches maps on 2 worker processes (as '
+                                           'merge_maps does), which use both cores where threads take turns; it '
+                                           'gained the node nothing on 30 robots and took 330 MiB more')
     max_merged_cells: int = _p(1 << 24, 'extra: largest merged grid (cells); a robot whose map or placement would '
                                         'make it larger is left out of that cycle with a warning (1..2^28)')
 
