@@ -33,17 +33,18 @@ PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')
          ('detection', ('~', 'detectAndCompute')),
          ('RANSAC', ('hypotheses.py', 'ransac_rigid'))]
 
-# the main thread's phases of an estimation with its defaults: (label, (file suffix, function), callers (file suffix,
-# function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the workers is the time
-# spent waiting for its results
-PHASES = [('batches of matches in parallel', ('workers.py', 'match_all'),
-           [('growth.py', 'grow'), ('stronger.py', 'of'), ('growth.py', 'confirm_searches')]),
-          ('preparing the grids', ('_base.py', 'result_iterator'), [('estimator.py', '_estimate')]),
-          ('group matches (searches included)', ('growth.py', '_match_groups'), None),
-          ('group matches made ahead, in parallel', ('growth.py', '_match_ahead'), None),
-          ('single-grid searches', ('growth.py', '_search'), None),
-          ('the maps left out searched again', ('growth.py', 'search_left_out'), None),
-          ('the final relaxation', ('estimator.py', 'relax_group'), None)]
+# the main thread's phases of an estimation with its defaults: label, its parts ((file suffix, function), callers
+# (file suffix, function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the workers
+# is the time spent waiting for its results
+PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth.py', 'grow')]),
+                                              (('workers.py', 'match_all'), [('stronger.py', 'of')]),
+                                              (('_base.py', 'result_iterator'), [('growth.py', 'confirm_searches')])]),
+          ('preparing the grids', [(('_base.py', 'result_iterator'), [('estimator.py', '_estimate')])]),
+          ('group matches (searches included)', [(('growth.py', '_match_groups'), None)]),
+          ('group matches made ahead, in parallel', [(('growth.py', '_match_ahead'), None)]),
+          ('single-grid searches, in parallel', [(('growth.py', '_search'), None)]),
+          ('the maps left out searched again', [(('growth.py', 'search_left_out'), None)]),
+          ('the final relaxation', [(('estimator.py', 'relax_group'), None)])]
 
 # one estimation of the maps in a folder; serial: pools replaced by loops, no worker processes, OpenCV on one
 # thread; profile: the file cProfile writes to ('' for none); prints the wall time in s
@@ -121,8 +122,8 @@ def main() -> None:
         stats = pstats.Stats(str(out)).stats
         print(f'{args.maps.name}: with its defaults {total:.2f} s (its main thread under cProfile)')
         shown = 0.0
-        for label, (suffix, name), callers in PHASES:
-            spent = cumulative(stats, suffix, name, callers)
+        for label, parts in PHASES:
+            spent = sum(cumulative(stats, suffix, name, callers) for (suffix, name), callers in parts)
             shown += spent
             print(f'  {label:38s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
         print(f'  {"the rest, on the main thread":38s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
