@@ -57,7 +57,7 @@ class MapMergeParams:
                                                      'map\'s uncertain cells, e.g. Cartographer\'s) count as unknown')
     estimation_processes: bool = _p(False, 'extra: true: the estimation matches maps on 2 worker processes (as '
                                            'merge_maps does), which use both cores where threads take turns; it '
-                                           'gained the node nothing on 30 robots and took 330 MiB more')
+                                           'gained the node nothing on 30 robots and took 230-340 MiB more')
     max_merged_cells: int = _p(1 << 24, 'extra: largest merged grid (cells); a robot whose map or placement would '
                                         'make it larger is left out of that cycle with a warning (1..2^28)')
 
