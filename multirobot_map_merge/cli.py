@@ -244,6 +244,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except OSError as e:
         print(f'merge_maps: error: {e}'.splitlines()[0], file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print('merge_maps: interrupted', file=sys.stderr)
+        return 130   # as a shell reports SIGINT
 
 
 if __name__ == '__main__':

@@ -104,14 +104,17 @@ def test_the_files_of_an_estimation_are_removed(repo_root):
     assert not os.path.exists(folder)
 
 
-# a process that starts the workers, says their pids, and waits to be killed
+# a process that starts the workers, says their pids, and waits to be killed or interrupted
 HOLDER = textwrap.dedent('''
     import os, sys, time
     from multirobot_map_merge.estimation import workers
     if __name__ == '__main__':
         executor = workers._POOL.get(2)
         print(sorted({executor.submit(os.getpid).result() for _ in range(6)}), flush=True)
-        time.sleep(60)
+        try:
+            time.sleep(60)
+        except KeyboardInterrupt:
+            print('interrupted', flush=True)
 ''')
 
 
@@ -137,3 +140,57 @@ def test_no_worker_outlives_a_killed_estimating_process(repo_root):
     while any(_alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(_alive(p) for p in pids)
+
+
+def test_ctrl_c_leaves_the_workers_to_the_estimating_process(repo_root):
+    """Ctrl-C reaches the whole process group: idle workers ignore it (each printed a traceback), the estimating
+    process answers it."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(repo_root), os.environ.get('PYTHONPATH')])))
+    holder = subprocess.Popen([sys.executable, '-c', HOLDER], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True, env=env, start_new_session=True)
+    try:
+        json.loads(holder.stdout.readline())
+        time.sleep(0.5)   # the workers wait for work
+        os.killpg(holder.pid, signal.SIGINT)
+        out, _ = holder.communicate(timeout=30)
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+    assert out.strip() == 'interrupted', out
+
+
+def _process_group(pgid):
+    pids = []
+    for entry in os.listdir('/proc'):
+        if entry.isdigit():
+            try:
+                if os.getpgid(int(entry)) == pgid and _alive(int(entry)):
+                    pids.append(int(entry))
+            except (ProcessLookupError, PermissionError):
+                pass
+    return pids
+
+
+def test_ctrl_c_ends_merge_maps_and_its_workers_with_one_line(repo_root, shared_dir, tmp_path):
+    """Ctrl-C reaches the whole process group while merge_maps estimates: one line, exit 130, and no process of the
+    group is left."""
+    maps = sorted(str(p) for p in (shared_dir / 'data' / 'dev' / 'large30_hospital_section').glob('map_*.yaml'))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(repo_root), os.environ.get('PYTHONPATH')])))
+    merge = subprocess.Popen([sys.executable, str(repo_root / 'nodes' / 'merge_maps'), '--output',
+                              str(tmp_path / 'merged'), *maps], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                             text=True, env=env, start_new_session=True)
+    try:
+        for line in merge.stderr:   # bounded: merge_maps ends
+            if 'estimating transforms' in line:
+                break
+        os.killpg(merge.pid, signal.SIGINT)
+        rest = merge.stderr.read()
+        assert merge.wait(timeout=30) == 130, rest
+    finally:
+        if merge.poll() is None:
+            merge.kill()
+    assert rest.strip() == 'merge_maps: interrupted', rest
+    deadline = time.monotonic() + 10 * workers.WATCH_PERIOD_S
+    while _process_group(merge.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _process_group(merge.pid)

@@ -24,6 +24,7 @@ import multiprocessing
 import os
 import pickle
 import shutil
+import signal
 import tempfile
 import threading
 import time
@@ -82,6 +83,8 @@ _worker_neighbours = ContentNeighbourCache()
 
 def _start_worker(estimating: int) -> None:
     cv2.setNumThreads(1)   # one core each: the pool has a worker per core it may use
+    # Ctrl-C reaches the whole process group: the estimating process answers it, and its workers end with it
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watch, args=(estimating,), name='watch', daemon=True).start()
 
 
