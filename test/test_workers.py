@@ -1,5 +1,6 @@
 """The matches in worker processes (estimation/workers.py): the same placements as on threads, a worker killed on
 the way, the files removed, and no worker left behind when the estimating process is killed."""
+import gc
 import json
 import logging
 import os
@@ -101,6 +102,18 @@ def test_the_files_of_an_estimation_are_removed(repo_root):
         _same_matches(matcher.match_all(calls), calls, settings)
         folder = matcher._folder
         assert folder is not None and len(os.listdir(folder)) == len(grids)
+    assert not os.path.exists(folder)
+
+
+def test_the_files_of_a_matcher_used_without_with_are_removed_once_it_is_collected(repo_root):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    with ThreadPoolExecutor(2) as pool:
+        matcher = workers.ParallelMatcher(EstimationSettings(processes=True), pool)   # as a Grower makes its own
+        matcher.match_all(_calls(grids))
+        folder = matcher._folder
+        assert os.path.isdir(folder)
+        del matcher
+        gc.collect()
     assert not os.path.exists(folder)
 
 

@@ -28,6 +28,7 @@ import signal
 import tempfile
 import threading
 import time
+import weakref
 from collections import OrderedDict
 from concurrent.futures import Executor, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -183,7 +184,8 @@ def _shared_folder() -> Optional[str]:
 
 class ParallelMatcher:
     """One estimation's parallel matches: on `settings.threads` worker processes (settings.processes), else on the
-    estimation's thread pool. A context manager: its files are removed at its end."""
+    estimation's thread pool. A context manager: its files are removed at its end (or once it is collected, for one
+    used without `with`)."""
 
     def __init__(self, settings: EstimationSettings, threads: Executor,
                  neighbours: Optional[NeighbourCache] = None) -> None:
@@ -193,6 +195,7 @@ class ParallelMatcher:
         if self.processes:
             _POOL.start(settings.threads)   # while the grids are prepared
         self._folder: Optional[str] = None
+        self._remove_folder: Optional[weakref.finalize] = None
         # id of a grid sent -> (it, its file, the file's size), least recently used first
         self._files: 'OrderedDict[int, Tuple[PreparedGrid, str, int]]' = OrderedDict()
         self._bytes = 0
@@ -204,8 +207,8 @@ class ParallelMatcher:
         return self
 
     def __exit__(self, *exc) -> bool:
-        if self._folder is not None:
-            shutil.rmtree(self._folder, ignore_errors=True)
+        if self._remove_folder is not None:
+            self._remove_folder()
         self._files.clear()
         return False
 
@@ -244,6 +247,7 @@ class ParallelMatcher:
                 return sent[1]
             if self._folder is None:
                 self._folder = tempfile.mkdtemp(prefix='map_merge_', dir=_shared_folder())
+                self._remove_folder = weakref.finalize(self, shutil.rmtree, self._folder, ignore_errors=True)
             self._written += 1
             path = os.path.join(self._folder, f'{self._written}.pickle')
         with open(path, 'wb') as f:
