@@ -26,7 +26,7 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
-from .pair import SEARCH_POSTPONED, PairMatch, match_pair
+from .pair import SEARCH_POSTPONED, PairMatch
 from .settings import EstimationSettings
 from .eviction import MIN_AGREEING, contradicted_members, judge_members
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
@@ -747,8 +747,7 @@ class Grower:
         if m is None:
             spent = self.search_seconds >= self.s.search_budget_s
             started = time.perf_counter()
-            call = self._group_call(small, big, spent)
-            m = match_pair(call.i, call.j, call.pi, call.pj, self.s, neighbours=self.neighbours, **call.options)
+            m = self.matcher.match_here(self._group_call(small, big, spent))
             self.search_seconds += time.perf_counter() - started
             self._keep_group_match(small, big, spent, m)
         if m.reason == SEARCH_POSTPONED:

@@ -187,10 +187,9 @@ class ParallelMatcher:
     estimation's thread pool. A context manager: its files are removed at its end (or once it is collected, for one
     used without `with`)."""
 
-    def __init__(self, settings: EstimationSettings, threads: Executor,
-                 neighbours: Optional[NeighbourCache] = None) -> None:
+    def __init__(self, settings: EstimationSettings, threads: Executor) -> None:
         self.s, self.threads = settings, threads
-        self.neighbours = neighbours if neighbours is not None else NeighbourCache()
+        self.neighbours = NeighbourCache()   # the descriptor distances of the matches made in this process
         self.processes = settings.processes and settings.threads > 1
         if self.processes:
             _POOL.start(settings.threads)   # while the grids are prepared
@@ -221,8 +220,11 @@ class ParallelMatcher:
             except (BrokenProcessPool, OSError) as e:
                 log.warning('the matching processes failed (%s): this batch runs on threads', e)
                 _POOL.broken(executor)
-        return list(self.threads.map(lambda c: match_pair(c.i, c.j, c.pi, c.pj, self.s, neighbours=self.neighbours,
-                                                          **c.options), calls))
+        return list(self.threads.map(self.match_here, calls))
+
+    def match_here(self, call: MatchCall) -> PairMatch:
+        """One match, in this process."""
+        return match_pair(call.i, call.j, call.pi, call.pj, self.s, neighbours=self.neighbours, **call.options)
 
     def _on_processes(self, executor: ProcessPoolExecutor, calls: Sequence[MatchCall]) -> List[PairMatch]:
         grids = {id(g): g for c in calls for g in (c.pi, c.pj)}
