@@ -43,17 +43,22 @@ def wrap_angle(a: float) -> float:
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares rigid transform (3x3) taking src points onto dst points (no reflection, no scale).
+    """Least-squares rigid transform (3x3) taking src points onto dst points (no reflection, no scale)."""
+    return kabsch_xy(src[:, 0], src[:, 1], dst[:, 0], dst[:, 1])
+
+
+def kabsch_xy(sx: np.ndarray, sy: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """kabsch() of points given as coordinate arrays (source x, y, destination x, y).
 
     In 2-D the best rotation has a closed form, the angle of the cross-covariance (what Kabsch's SVD gives, for a
-    fraction of its cost: ICP calls this thousands of times per estimation); the covariance from the raw sums, in
-    one product."""
-    n = len(src)
-    ms, md = src.sum(axis=0) / n, dst.sum(axis=0) / n
-    cov = src.T @ dst - n * np.outer(ms, md)
-    angle = math.atan2(cov[0, 1] - cov[1, 0], cov[0, 0] + cov[1, 1])
+    fraction of its cost: ICP calls this thousands of times per estimation); the covariance from the raw sums."""
+    n = len(sx)
+    msx, msy, mdx, mdy = sx.sum() / n, sy.sum() / n, dx.sum() / n, dy.sum() / n
+    c00, c01 = sx @ dx - n * msx * mdx, sx @ dy - n * msx * mdy
+    c10, c11 = sy @ dx - n * msy * mdx, sy @ dy - n * msy * mdy
+    angle = math.atan2(c01 - c10, c00 + c11)
     c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, md[0] - c * ms[0] + s * ms[1]], [s, c, md[1] - s * ms[0] - c * ms[1]], [0.0, 0.0, 1.0]])
+    return np.array([[c, -s, mdx - c * msx + s * msy], [s, c, mdy - s * msx - c * msy], [0.0, 0.0, 1.0]])
 
 
 def difference(a: np.ndarray, b: np.ndarray, at: np.ndarray) -> Tuple[float, float]:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid, opposed
+from .features import PreparedGrid
 from .validation import must_be_positive
 from .verify import same_place
 
@@ -45,30 +45,38 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
         return model
     h, w = pj.work.shape
     nearest, walls, normals = pj.nearest_wall.reshape(-1), pj.walls, pj.wall_normals
+    # ICP is the estimation's inner loop: coordinates as separate arrays and the placement written out (a 2x2
+    # product of (N, 2) arrays costs several times these few products), flat `take`s instead of fancy indexing, and
+    # a negative coordinate fails the bound as a huge unsigned one
+    sx, sy = np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1])
+    ax, ay = np.ascontiguousarray(src_side[:, 0]), np.ascontiguousarray(src_side[:, 1])
+    side_length = ax * ax + ay * ay
     # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
-    # (flat `take`s instead of fancy indexing, and a negative coordinate fails the bound as a huge unsigned one:
-    # ICP is the estimation's inner loop, and this halves it)
     for radius in s.icp_radii:
         for _ in range(s.icp_iterations):
-            moved = tf.apply(model, src)
-            xy = np.rint(moved).astype(np.int64)
-            x, y = xy[:, 0], xy[:, 1]
+            (a, b, tx), (c, d, ty) = model[0], model[1]
+            mx, my = sx * a + sy * b + tx, sx * c + sy * d + ty
+            x, y = np.rint(mx).astype(np.int64), np.rint(my).astype(np.int64)
             pick = np.flatnonzero((x.view(np.uint64) < w) & (y.view(np.uint64) < h))
             # the nearest wall of j (pj.nearest, inlined)
             wall = nearest.take(y.take(pick) * w + x.take(pick))
             nn = walls.take(wall, axis=0)
-            gap = nn - moved.take(pick, axis=0)
-            dx, dy = gap[:, 0], gap[:, 1]
+            gx, gy = nn[:, 0], nn[:, 1]
+            px, py = mx.take(pick), my.take(pick)
+            dx, dy = gx - px, gy - py
             close = np.flatnonzero(dx * dx + dy * dy < radius * radius)
             if s.facing and len(close):
-                # a wall's two faces are not the same wall: pair only walls seen from the same side
-                turned = src_side.take(pick.take(close), axis=0) @ model[:2, :2].T
-                close = close[~opposed(turned, normals.take(wall.take(close), axis=0))]
+                # a wall's two faces are not the same wall: pair only walls seen from the same side (opposed(),
+                # with i's side turned by the placement)
+                k, near = pick.take(close), normals.take(wall.take(close), axis=0)
+                kx, ky, bx, by = ax.take(k), ay.take(k), near[:, 0], near[:, 1]
+                dot = (kx * a + ky * b) * bx + (kx * c + ky * d) * by
+                close = close[~(dot < -0.3 * np.sqrt(side_length.take(k) * (bx * bx + by * by)) - 1e-6)]
             if len(close) < 10:
                 return model
-            step = tf.kabsch(moved.take(pick.take(close), axis=0), nn.take(close, axis=0))
+            step = tf.kabsch_xy(px.take(close), py.take(close), gx.take(close), gy.take(close))
             model = step @ model
-            if abs(step[1, 0]) < 5e-4 and np.abs(step[:2, 2]).max() < 0.1:
+            if abs(step[1, 0]) < 5e-4 and max(abs(step[0, 2]), abs(step[1, 2])) < 0.1:
                 break
         if any(same_place(model, t, pi) for t in reached):
             break
