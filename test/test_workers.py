@@ -94,6 +94,26 @@ def test_a_killed_worker_leaves_its_batch_to_the_threads(repo_root, caplog):
         assert not caplog.records and workers._POOL.get(settings.threads) is not executor
 
 
+def test_what_a_match_logs_in_a_worker_is_logged_in_the_estimating_process(repo_root, caplog):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    calls = [workers.MatchCall(i, j, grids[i], grids[j], dict(search=False))
+             for i in range(len(grids)) for j in range(len(grids)) if i != j]
+    pair_logger = 'rosout.multirobot_map_merge.estimation.pair'
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(EstimationSettings(processes=True), pool) as matcher:
+        with caplog.at_level(logging.DEBUG, logger=workers.PACKAGE_LOGGER):
+            matches = matcher.match_all(calls)
+            here = [r for r in caplog.records if r.name == pair_logger]
+        # each match made (one that reached its verdict) says so, from a worker, in the order of the calls
+        said = [r.getMessage().split(':')[0] for r in here]
+        assert said == [f'pair {m.i}-{m.j}' for m in matches if m.best is not None]
+        assert said and os.getpid() not in {r.process for r in here}
+        # at the level the estimating process logs at: nothing below it is made or sent
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger=workers.PACKAGE_LOGGER):
+            matcher.match_all(calls)
+        assert not [r for r in caplog.records if r.name == pair_logger]
+
+
 def test_the_files_of_an_estimation_are_removed(repo_root):
     grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
     settings = EstimationSettings(processes=True)

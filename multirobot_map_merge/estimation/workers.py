@@ -10,7 +10,9 @@ any has. The grids of a batch reach the workers through files (in /dev/shm where
 it; a worker keeps the last LOADED_KEPT it read, with what its matches derive from them, and its own descriptor
 distances (neighbours.py), known by the descriptors' content. The largest grids go first, so that a batch ends on
 short matches. A batch the pool cannot run (a worker killed) runs on the threads instead, and the pool is started
-again for the next one; a worker ends itself when the estimating process has gone, and removes its files.
+again for the next one; a worker ends itself when the estimating process has gone, and removes its files. What a
+match logs in a worker (at the level the estimating process logs this package at) is logged again in the estimating
+process, with the match's result, in the order of the calls.
 
 A program that uses the estimation with processes must guard its main code with `if __name__ == '__main__':`, as
 multiprocessing requires: a worker imports the main module.
@@ -44,6 +46,7 @@ from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.workers')
+PACKAGE_LOGGER = 'rosout.multirobot_map_merge'   # the core's loggers: a worker's records are sent back
 
 WATCH_PERIOD_S = 1.0   # how often a worker checks that the estimating process is still there
 STARTED_TOGETHER_S = 0.05   # a task this long on each worker makes the pool start them all at once
@@ -117,14 +120,38 @@ def _load(path: str) -> PreparedGrid:
     return grid
 
 
+class _Kept(logging.Handler):
+    """A worker's log records of one match, made picklable (as logging.handlers.QueueHandler does), to be sent back."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: List[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        record = logging.makeLogRecord(record.__dict__)
+        record.msg, record.args = record.getMessage(), None
+        if record.exc_info:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        record.exc_info = None
+        self.records.append(record)
+
+
 def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, settings: EstimationSettings,
-                     options: dict) -> PairMatch:
+                     options: dict, log_level: int) -> Tuple[PairMatch, List[logging.LogRecord]]:
     global _worker_estimation, _worker_neighbours
     if estimation != _worker_estimation:
         _worker_estimation = estimation
         _worker_grids.clear()
         _worker_neighbours = ContentNeighbourCache()
-    return match_pair(i, j, _load(path_i), _load(path_j), settings, neighbours=_worker_neighbours, **options)
+    package, kept = logging.getLogger(PACKAGE_LOGGER), _Kept()
+    package.setLevel(log_level)
+    package.propagate = False   # kept for the estimating process, not printed here
+    package.addHandler(kept)
+    try:
+        return match_pair(i, j, _load(path_i), _load(path_j), settings, neighbours=_worker_neighbours,
+                          **options), kept.records
+    finally:
+        package.removeHandler(kept)
 
 
 # --- in the estimating process ---------------------------------------------------------------------------------
@@ -233,13 +260,18 @@ class ParallelMatcher:
         paths = dict(zip(grids, self.threads.map(self._path, grids.values())))
         # the largest first: the batch ends on short matches, not on a long one alone on the pool
         order = sorted(range(len(calls)), key=lambda n: -len(calls[n].pi.walls))
+        level = logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel()
         futures = {n: executor.submit(_match_in_worker, self._folder, calls[n].i, calls[n].j,
                                       paths[id(calls[n].pi)], paths[id(calls[n].pj)], self._worker_settings,
-                                      calls[n].options) for n in order}
+                                      calls[n].options, level) for n in order}
         try:
-            return [futures[n].result() for n in range(len(calls))]
+            results = [futures[n].result() for n in range(len(calls))]
         finally:
             self._remove_unused(grids)
+        for _, records in results:
+            for record in records:
+                logging.getLogger(record.name).handle(record)
+        return [m for m, _ in results]
 
     def _path(self, grid: PreparedGrid) -> str:
         with self._lock:
