@@ -11,7 +11,8 @@ estimation alone, of the estimation with its defaults (matches on worker process
 in two processes at once: what the second core can give. With --phases it also prints where the wall time of an
 estimation with its defaults goes, as its main thread sees it: waiting for the batches of matches and the group
 matches made ahead (both on the workers), and the work it does alone (group matches, single-grid searches, the
-search of the maps left out and the relaxation at the end, the rest).
+search of the maps left out and the relaxation at the end, the rest); and how busy the batches kept the worker
+processes (the share of the batches' wall time they spent reading grids and matching).
 """
 from __future__ import annotations
 
@@ -64,6 +65,15 @@ class Loop:
 if serial:
     cv2.setNumThreads(1)
     estimator.ThreadPoolExecutor = search.ThreadPoolExecutor = Loop
+else:
+    import logging
+    class Said(logging.Handler):   # how busy the batches kept the workers (workers.BatchStats)
+        def emit(self, record):
+            if 'worker processes' in record.getMessage():
+                print('  ' + record.getMessage())
+    workers = logging.getLogger('rosout.multirobot_map_merge.estimation.workers')
+    workers.setLevel(logging.DEBUG)
+    workers.addHandler(Said())
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
 settings = EstimationSettings(processes=not serial)
 wall = time.perf_counter()
@@ -81,10 +91,14 @@ def run(maps: Path, serial: bool, profile: str = '') -> subprocess.Popen:
 
 
 def seconds(process: subprocess.Popen) -> float:
+    """The wall time the estimation printed last; what it printed before that is printed here."""
     out, _ = process.communicate()
     if process.returncode:
         sys.exit(f'profile_estimation: the estimation failed (exit {process.returncode})')
-    return float(out.split()[-1])
+    *said, last = out.rstrip().split('\n')
+    if said:
+        print('\n'.join(said))
+    return float(last)
 
 
 def cumulative(stats: dict, suffix: str, name: str, callers=None) -> float:

@@ -114,6 +114,20 @@ def test_what_a_match_logs_in_a_worker_is_logged_in_the_estimating_process(repo_
         assert not [r for r in caplog.records if r.name == pair_logger]
 
 
+def test_an_estimation_says_how_busy_its_batches_kept_the_workers(repo_root, caplog):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    calls = _calls(grids)
+    with caplog.at_level(logging.DEBUG, logger=workers.log.name):
+        with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(EstimationSettings(processes=True), pool) as m:
+            m.match_all(calls)
+            m.match_all(calls[:1])   # one match runs here, not on the workers
+            stats = m.stats
+    assert (stats.batches, stats.matches) == (1, len(calls))
+    assert 0.0 < stats.matching_s <= 2 * stats.seconds and stats.reading_s > 0.0
+    said = [r.getMessage() for r in caplog.records if 'worker processes' in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f'{len(calls)} matches in 1 batches on 2 worker processes')
+
+
 def test_the_files_of_an_estimation_are_removed(repo_root):
     grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
     settings = EstimationSettings(processes=True)

@@ -67,6 +67,30 @@ class MatchCall:
     options: Dict[str, object] = field(default_factory=dict)
 
 
+@dataclass
+class BatchStats:
+    """What the batches of one estimation took on the worker processes: how busy they kept the workers."""
+    batches: int = 0
+    matches: int = 0
+    seconds: float = 0.0          # the batches' wall time, as the estimating process waited for them
+    reading_s: float = 0.0        # the workers' time reading grids from their files
+    matching_s: float = 0.0       # and matching them
+
+    def add(self, seconds: float, times: Sequence[Tuple[float, float]]) -> None:
+        """A batch that took `seconds`, and (reading, matching) seconds of each of its matches."""
+        self.batches += 1
+        self.matches += len(times)
+        self.seconds += seconds
+        self.reading_s += sum(t[0] for t in times)
+        self.matching_s += sum(t[1] for t in times)
+
+    def summary(self, workers: int) -> str:
+        busy = (self.reading_s + self.matching_s) / max(workers * self.seconds, 1e-9)
+        return (f'{self.matches} matches in {self.batches} batches on {workers} worker processes, {self.seconds:.2f} s: '
+                f'the workers busy {100 * busy:.0f} % of it, reading grids {self.reading_s:.2f} s and matching '
+                f'{self.matching_s:.2f} s')
+
+
 class ContentNeighbourCache(NeighbourCache):
     """A worker's descriptor distances: the arrays arrive as copies, so they are known by their content."""
 
@@ -137,7 +161,8 @@ class _Kept(logging.Handler):
 
 
 def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, settings: EstimationSettings,
-                     options: dict, log_level: int) -> Tuple[PairMatch, List[logging.LogRecord]]:
+                     options: dict, log_level: int) -> Tuple[PairMatch, List[logging.LogRecord], float, float]:
+    """The match, what it logged, and the seconds spent reading its grids and matching them."""
     global _worker_estimation, _worker_neighbours
     if estimation != _worker_estimation:
         _worker_estimation = estimation
@@ -148,8 +173,11 @@ def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, 
     package.propagate = False   # kept for the estimating process, not printed here
     package.addHandler(kept)
     try:
-        return match_pair(i, j, _load(path_i), _load(path_j), settings, neighbours=_worker_neighbours,
-                          **options), kept.records
+        started = time.perf_counter()
+        pi, pj = _load(path_i), _load(path_j)
+        loaded = time.perf_counter()
+        m = match_pair(i, j, pi, pj, settings, neighbours=_worker_neighbours, **options)
+        return m, kept.records, loaded - started, time.perf_counter() - loaded
     finally:
         package.removeHandler(kept)
 
@@ -228,11 +256,14 @@ class ParallelMatcher:
         self._lock = threading.Lock()
         self._written = 0
         self._worker_settings = settings.replace(threads=1)   # a worker's search runs on its own core
+        self.stats = BatchStats()
 
     def __enter__(self) -> 'ParallelMatcher':
         return self
 
     def __exit__(self, *exc) -> bool:
+        if self.stats.batches:
+            log.debug('%s', self.stats.summary(self.s.threads))
         if self._remove_folder is not None:
             self._remove_folder()
         self._files.clear()
@@ -261,6 +292,7 @@ class ParallelMatcher:
         # the largest first: the batch ends on short matches, not on a long one alone on the pool
         order = sorted(range(len(calls)), key=lambda n: -len(calls[n].pi.walls))
         level = logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel()
+        started = time.perf_counter()
         futures = {n: executor.submit(_match_in_worker, self._folder, calls[n].i, calls[n].j,
                                       paths[id(calls[n].pi)], paths[id(calls[n].pj)], self._worker_settings,
                                       calls[n].options, level) for n in order}
@@ -268,10 +300,11 @@ class ParallelMatcher:
             results = [futures[n].result() for n in range(len(calls))]
         finally:
             self._remove_unused(grids)
-        for _, records in results:
+        self.stats.add(time.perf_counter() - started, [r[2:] for r in results])
+        for _, records, _, _ in results:
             for record in records:
                 logging.getLogger(record.name).handle(record)
-        return [m for m, _ in results]
+        return [r[0] for r in results]
 
     def _path(self, grid: PreparedGrid) -> str:
         with self._lock:
