@@ -86,9 +86,9 @@ class BatchStats:
 
     def summary(self, workers: int) -> str:
         busy = (self.reading_s + self.matching_s) / max(workers * self.seconds, 1e-9)
-        return (f'{self.matches} matches in {self.batches} batches on {workers} worker processes, {self.seconds:.2f} s: '
-                f'the workers busy {100 * busy:.0f} % of it, reading grids {self.reading_s:.2f} s and matching '
-                f'{self.matching_s:.2f} s')
+        return (f'{self.matches} matches in {self.batches} batches on {workers} worker processes, '
+                f'{self.seconds:.2f} s: the workers busy {100 * busy:.0f} % of it, reading grids '
+                f'{self.reading_s:.2f} s and matching {self.matching_s:.2f} s')
 
 
 class ContentNeighbourCache(NeighbourCache):
