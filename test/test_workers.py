@@ -1,5 +1,6 @@
 """The matches in worker processes (estimation/workers.py): the same placements as on threads, a worker killed on
 the way, the files removed, and no worker left behind when the estimating process is killed."""
+import errno
 import gc
 import json
 import logging
@@ -8,6 +9,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -126,6 +128,37 @@ def test_an_estimation_says_how_busy_its_batches_kept_the_workers(repo_root, cap
     assert 0.0 < stats.matching_s <= 2 * stats.seconds and stats.reading_s > 0.0
     said = [r.getMessage() for r in caplog.records if 'worker processes' in r.getMessage()]
     assert len(said) == 1 and said[0].startswith(f'{len(calls)} matches in 1 batches on 2 worker processes')
+
+
+def test_the_files_go_to_the_temporary_folder_when_dev_shm_has_too_little_room(repo_root, monkeypatch):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    settings = EstimationSettings(processes=True)
+    calls = _calls(grids)
+    monkeypatch.setattr(workers, 'SHARED_FREE_BYTES', 2 ** 62)   # as a container's 64 MB /dev/shm is for many maps
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
+        _same_matches(matcher.match_all(calls), calls, settings)
+        assert matcher.stats.batches == 1   # on the workers
+        assert os.path.dirname(matcher._folder) == tempfile.gettempdir() != workers.SHARED_FOLDER
+
+
+def test_grids_that_cannot_be_written_leave_the_estimation_on_threads_with_one_warning(repo_root, monkeypatch,
+                                                                                        caplog):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    settings = EstimationSettings(processes=True)
+    calls = _calls(grids)
+
+    def full(self, grid):
+        raise OSError(errno.ENOSPC, 'No space left on device')
+
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
+        executor = workers._POOL.get(settings.threads)
+        monkeypatch.setattr(workers.ParallelMatcher, '_path', full)
+        with caplog.at_level(logging.WARNING, logger=workers.log.name):
+            _same_matches(matcher.match_all(calls), calls, settings)
+            _same_matches(matcher.match_all(calls), calls, settings)
+        said = [r.getMessage() for r in caplog.records]
+        assert len(said) == 1 and 'cannot be written' in said[0] and matcher.stats.batches == 0
+        assert workers._POOL.get(settings.threads) is executor   # the pool was sound: not started again
 
 
 def test_the_files_of_an_estimation_are_removed(repo_root):

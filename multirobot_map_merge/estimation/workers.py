@@ -5,7 +5,7 @@ generated 36-map buildings a second thread added 0.14 of a core's work, a second
 `ParallelMatcher.match_all` runs a batch of `match_pair` calls (the growth's descriptor matches, the searches of
 the maps left out, the pair evidence, the group matches made ahead) on a pool of worker processes started by the
 `forkserver`: a forked child of a process whose OpenCV threads have run can deadlock, and the server forks before
-any has. The grids of a batch reach the workers through files (in /dev/shm where there is one), each written once
+any has. The grids of a batch reach the workers through files (in /dev/shm when it has room), each written once
 (again only if it was removed to keep the files within FILES_KEPT_BYTES) and read once by each worker that needs
 it; a worker keeps the last LOADED_KEPT it read, with what its matches derive from them, and its own descriptor
 distances (neighbours.py), known by the descriptors' content. The largest grids go first, so that a batch ends on
@@ -55,6 +55,8 @@ LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its
 # working resolution (its fields), 4 MB for the median map of the generated 36-map buildings, 16 MB for a large
 # union; an estimation there wrote 1.7 GB in all
 FILES_KEPT_BYTES = 256 * 2 ** 20
+SHARED_FOLDER = '/dev/shm'
+SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to go there: those kept and a batch's
 
 
 @dataclass
@@ -233,8 +235,16 @@ class _Pool:
 _POOL = _Pool()
 
 
-def _shared_folder() -> Optional[str]:
-    return '/dev/shm' if os.path.isdir('/dev/shm') and os.access('/dev/shm', os.W_OK) else None
+def _files_folder() -> Optional[str]:
+    """Where an estimation's files go: /dev/shm (memory) when it has room for them, else the temporary folder (None:
+    tempfile's default). A container's /dev/shm is often 64 MB, less than one batch of the generated 36-map
+    buildings writes."""
+    try:
+        if os.access(SHARED_FOLDER, os.W_OK) and shutil.disk_usage(SHARED_FOLDER).free >= SHARED_FREE_BYTES:
+            return SHARED_FOLDER
+    except OSError:
+        pass
+    return None
 
 
 class ParallelMatcher:
@@ -275,9 +285,14 @@ class ParallelMatcher:
             executor = _POOL.get(self.s.threads)
             try:
                 return self._on_processes(executor, calls)
-            except (BrokenProcessPool, OSError) as e:
+            except BrokenProcessPool as e:
                 log.warning('the matching processes failed (%s): this batch runs on threads', e)
                 _POOL.broken(executor)
+            except OSError as e:
+                # the files (a full disk): every batch would fail the same way, the pool is sound
+                log.warning('the grids cannot be written for the matching processes (%s): the matches of this '
+                            'estimation run on threads', e)
+                self.processes = False
         return list(self.threads.map(self.match_here, calls))
 
     def match_here(self, call: MatchCall) -> PairMatch:
@@ -313,7 +328,7 @@ class ParallelMatcher:
                 self._files.move_to_end(id(grid))
                 return sent[1]
             if self._folder is None:
-                self._folder = tempfile.mkdtemp(prefix='map_merge_', dir=_shared_folder())
+                self._folder = tempfile.mkdtemp(prefix='map_merge_', dir=_files_folder())
                 self._remove_folder = weakref.finalize(self, shutil.rmtree, self._folder, ignore_errors=True)
             self._written += 1
             path = os.path.join(self._folder, f'{self._written}.pickle')
