@@ -150,6 +150,7 @@ def test_grids_that_cannot_be_written_leave_the_estimation_on_threads_with_one_w
     def full(self, grid):
         raise OSError(errno.ENOSPC, 'No space left on device')
 
+    monkeypatch.setattr(workers, '_SAID', set())
     with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
         executor = workers._POOL.get(settings.threads)
         monkeypatch.setattr(workers.ParallelMatcher, '_path', full)
@@ -157,8 +158,29 @@ def test_grids_that_cannot_be_written_leave_the_estimation_on_threads_with_one_w
             _same_matches(matcher.match_all(calls), calls, settings)
             _same_matches(matcher.match_all(calls), calls, settings)
         said = [r.getMessage() for r in caplog.records]
-        assert len(said) == 1 and 'cannot be written' in said[0] and matcher.stats.batches == 0
+        assert len(said) == 1 and 'cannot be used' in said[0] and matcher.stats.batches == 0
         assert workers._POOL.get(settings.threads) is executor   # the pool was sound: not started again
+
+
+def test_processes_that_cannot_start_leave_the_estimation_on_threads_with_one_warning(repo_root, monkeypatch,
+                                                                                    caplog):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    settings = EstimationSettings(processes=True)
+    calls = _calls(grids)
+
+    def no_semaphores(*args, **kwargs):   # what multiprocessing raises where there are no POSIX semaphores
+        raise OSError(errno.ENOSYS, 'Function not implemented')
+
+    monkeypatch.setattr(workers, '_POOL', workers._Pool())
+    monkeypatch.setattr(workers, '_SAID', set())
+    monkeypatch.setattr(workers, 'ProcessPoolExecutor', no_semaphores)
+    with caplog.at_level(logging.WARNING, logger=workers.log.name):
+        for _ in range(2):   # two estimations (a node's): said once
+            with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
+                _same_matches(matcher.match_all(calls), calls, settings)
+                _same_matches(matcher.match_all(calls), calls, settings)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and 'cannot be used' in said[0] and matcher.stats.batches == 0
 
 
 def test_the_files_of_an_estimation_are_removed(repo_root):

@@ -233,6 +233,7 @@ class _Pool:
 
 
 _POOL = _Pool()
+_SAID: set = set()   # the warnings of _without_processes given in this process
 
 
 def _files_folder() -> Optional[str]:
@@ -257,7 +258,10 @@ class ParallelMatcher:
         self.neighbours = NeighbourCache()   # the descriptor distances of the matches made in this process
         self.processes = settings.processes and settings.threads > 1
         if self.processes:
-            _POOL.start(settings.threads)   # while the grids are prepared
+            try:
+                _POOL.start(settings.threads)   # while the grids are prepared
+            except OSError as e:
+                self._without_processes(e)
         self._folder: Optional[str] = None
         self._remove_folder: Optional[weakref.finalize] = None
         # id of a grid sent -> (it, its file, the file's size), least recently used first
@@ -282,18 +286,25 @@ class ParallelMatcher:
     def match_all(self, calls: Sequence[MatchCall]) -> List[PairMatch]:
         """The matches of `calls`, in their order."""
         if len(calls) > 1 and self.processes:
-            executor = _POOL.get(self.s.threads)
             try:
+                executor = _POOL.get(self.s.threads)
                 return self._on_processes(executor, calls)
             except BrokenProcessPool as e:
                 log.warning('the matching processes failed (%s): this batch runs on threads', e)
                 _POOL.broken(executor)
             except OSError as e:
-                # the files (a full disk): every batch would fail the same way, the pool is sound
-                log.warning('the grids cannot be written for the matching processes (%s): the matches of this '
-                            'estimation run on threads', e)
-                self.processes = False
+                self._without_processes(e)
         return list(self.threads.map(self.match_here, calls))
+
+    def _without_processes(self, e: OSError) -> None:
+        """The rest of this estimation's matches run on threads: processes cannot start (no POSIX semaphores, as
+        in some sandboxes) or the grids cannot be written (a full disk); every batch would fail the same way, and
+        a pool that runs is sound."""
+        said = f'the matching processes cannot be used ({e}): the matches of this estimation run on threads'
+        # once per process and cause: a node would say it at every estimation
+        (log.debug if said in _SAID else log.warning)('%s', said)
+        _SAID.add(said)
+        self.processes = False
 
     def match_here(self, call: MatchCall) -> PairMatch:
         """One match, in this process."""
