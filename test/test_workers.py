@@ -4,6 +4,7 @@ import errno
 import gc
 import json
 import logging
+import math
 import os
 import pickle
 import signal
@@ -23,6 +24,7 @@ from multirobot_map_merge.estimation.neighbours import NeighbourCache
 from multirobot_map_merge.estimation.pair import match_pair
 from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.mapio import load_map
+from multirobot_map_merge.throttle import Throttle
 
 
 def _maps(repo_root, name='union_join'):
@@ -150,7 +152,7 @@ def test_grids_that_cannot_be_written_leave_the_estimation_on_threads_with_one_w
     def full(self, grid):
         raise OSError(errno.ENOSPC, 'No space left on device')
 
-    monkeypatch.setattr(workers, '_SAID', set())
+    monkeypatch.setattr(workers, '_SAID', Throttle(math.inf))
     with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
         executor = workers._POOL.get(settings.threads)
         monkeypatch.setattr(workers.ParallelMatcher, '_path', full)
@@ -172,7 +174,7 @@ def test_processes_that_cannot_start_leave_the_estimation_on_threads_with_one_wa
         raise OSError(errno.ENOSYS, 'Function not implemented')
 
     monkeypatch.setattr(workers, '_POOL', workers._Pool())
-    monkeypatch.setattr(workers, '_SAID', set())
+    monkeypatch.setattr(workers, '_SAID', Throttle(math.inf))
     monkeypatch.setattr(workers, 'ProcessPoolExecutor', no_semaphores)
     with caplog.at_level(logging.WARNING, logger=workers.log.name):
         for _ in range(2):   # two estimations (a node's): said once

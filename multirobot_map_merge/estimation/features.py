@@ -147,7 +147,11 @@ def nonzero_2d(mask: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
 
 def opposed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Where two free-side directions point against each other: the walls there were seen from opposite sides."""
-    ax, ay, bx, by = a[..., 0], a[..., 1], b[..., 0], b[..., 1]   # no (N, 2) temporaries: ICP calls it per step
+    return opposed_xy(a[..., 0], a[..., 1], b[..., 0], b[..., 1])
+
+
+def opposed_xy(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray) -> np.ndarray:
+    """opposed() of directions given as coordinate arrays (no (N, 2) temporaries: ICP calls it per step)."""
     return ax * bx + ay * by < -0.3 * np.sqrt((ax * ax + ay * ay) * (bx * bx + by * by)) - 1e-6
 
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from .. import transforms as tf
-from .features import PreparedGrid
+from .features import PreparedGrid, opposed_xy
 from .validation import must_be_positive
 from .verify import same_place
 
@@ -50,7 +50,6 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
     # a negative coordinate fails the bound as a huge unsigned one
     sx, sy = np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1])
     ax, ay = np.ascontiguousarray(src_side[:, 0]), np.ascontiguousarray(src_side[:, 1])
-    side_length = ax * ax + ay * ay
     # shrinking correspondence radius: coarse capture first, then precise; each level runs until it settles
     for radius in s.icp_radii:
         for _ in range(s.icp_iterations):
@@ -66,12 +65,11 @@ def icp(pi: PreparedGrid, pj: PreparedGrid, start: np.ndarray, s: EstimationSett
             dx, dy = gx - px, gy - py
             close = np.flatnonzero(dx * dx + dy * dy < radius * radius)
             if s.facing and len(close):
-                # a wall's two faces are not the same wall: pair only walls seen from the same side (opposed(),
-                # with i's side turned by the placement)
+                # a wall's two faces are not the same wall: pair only walls seen from the same side (i's side
+                # turned by the placement)
                 k, near = pick.take(close), normals.take(wall.take(close), axis=0)
-                kx, ky, bx, by = ax.take(k), ay.take(k), near[:, 0], near[:, 1]
-                dot = (kx * a + ky * b) * bx + (kx * c + ky * d) * by
-                close = close[~(dot < -0.3 * np.sqrt(side_length.take(k) * (bx * bx + by * by)) - 1e-6)]
+                kx, ky = ax.take(k), ay.take(k)
+                close = close[~opposed_xy(kx * a + ky * b, kx * c + ky * d, near[:, 0], near[:, 1])]
             if len(close) < 10:
                 return model
             step = tf.kabsch_xy(px.take(close), py.take(close), gx.take(close), gy.take(close))

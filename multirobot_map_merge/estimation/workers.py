@@ -22,6 +22,8 @@ from __future__ import annotations
 import atexit
 import hashlib
 import logging
+import logging.handlers
+import math
 import multiprocessing
 import os
 import pickle
@@ -40,6 +42,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
+from ..throttle import Throttle
 from .features import PreparedGrid
 from .neighbours import NeighbourCache
 from .pair import PairMatch, match_pair
@@ -146,20 +149,9 @@ def _load(path: str) -> PreparedGrid:
     return grid
 
 
-class _Kept(logging.Handler):
-    """A worker's log records of one match, made picklable (as logging.handlers.QueueHandler does), to be sent back."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.records: List[logging.LogRecord] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        record = logging.makeLogRecord(record.__dict__)
-        record.msg, record.args = record.getMessage(), None
-        if record.exc_info:
-            record.exc_text = logging.Formatter().formatException(record.exc_info)
-        record.exc_info = None
-        self.records.append(record)
+class _Kept(list):
+    """A worker's log records of one match, as a QueueHandler prepares them (picklable), to be sent back."""
+    put_nowait = list.append
 
 
 def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, settings: EstimationSettings,
@@ -171,17 +163,18 @@ def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, 
         _worker_grids.clear()
         _worker_neighbours = ContentNeighbourCache()
     package, kept = logging.getLogger(PACKAGE_LOGGER), _Kept()
+    handler = logging.handlers.QueueHandler(kept)
     package.setLevel(log_level)
     package.propagate = False   # kept for the estimating process, not printed here
-    package.addHandler(kept)
+    package.addHandler(handler)
     try:
         started = time.perf_counter()
         pi, pj = _load(path_i), _load(path_j)
         loaded = time.perf_counter()
         m = match_pair(i, j, pi, pj, settings, neighbours=_worker_neighbours, **options)
-        return m, kept.records, loaded - started, time.perf_counter() - loaded
+        return m, kept, loaded - started, time.perf_counter() - loaded
     finally:
-        package.removeHandler(kept)
+        package.removeHandler(handler)
 
 
 # --- in the estimating process ---------------------------------------------------------------------------------
@@ -233,7 +226,7 @@ class _Pool:
 
 
 _POOL = _Pool()
-_SAID: set = set()   # the warnings of _without_processes given in this process
+_SAID = Throttle(math.inf)   # the warnings of _without_processes: once per process and cause
 
 
 def _files_folder() -> Optional[str]:
@@ -301,9 +294,7 @@ class ParallelMatcher:
         in some sandboxes) or the grids cannot be written (a full disk); every batch would fail the same way, and
         a pool that runs is sound."""
         said = f'the matching processes cannot be used ({e}): the matches of this estimation run on threads'
-        # once per process and cause: a node would say it at every estimation
-        (log.debug if said in _SAID else log.warning)('%s', said)
-        _SAID.add(said)
+        (log.warning if _SAID(said) else log.debug)('%s', said)   # a node would say it at every estimation
         self.processes = False
 
     def match_here(self, call: MatchCall) -> PairMatch:
