@@ -1,0 +1,91 @@
+#!/usr/bin/env python3
+"""The map_merge node's estimations replayed offline (not a test: it prints figures).
+
+    scripts/env.sh python bench/replay_node.py [--until 90] [--reveal 60] [--step S] [--threads N]
+        [--opencv-threads N] [--processes]
+
+The 30-map scenario (../shared/data/dev/large30_hospital_section) revealed as bench_node publishes it (bench/reveal.py:
+2 m tiles, nearest to each robot's start first, all known after --reveal s), estimated as the node estimates it (its
+settings, one pipeline with its memory, each estimation tracking the last one's placements) at the times of a
+clock: the next estimation starts --step s after the last one started, or (no --step) once it has ended, at least 2 s
+later (the node's estimation_rate 0.5). Prints per estimation its wall and CPU time, the maps placed and those the
+shared scorer finds placed wrong; then the median and longest estimation and the CPU of all of them.
+
+What bench_node measures live comes with its noise (the same code: median 2.5-3.7 s from one run to the next, with
+the publisher and roscore on the same two cores); with --step the same maps are estimated at the same times in every
+run, so two revisions or settings can be compared on their CPU time, and every estimation is scored.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import bench_merge  # bench/, beside this script (puts the repository on sys.path)
+from reveal import reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of
+
+DATA = bench_merge.REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
+RATE_PERIOD = 2.0   # s: the node's default estimation_rate 0.5
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--data', type=Path, default=DATA, help='scenario folder with truth.json and its maps')
+    ap.add_argument('--until', type=float, default=90.0, help='clock (s) at which no estimation starts any more')
+    ap.add_argument('--reveal', type=float, default=60.0, help='s until every map is known (bench_node: half its run)')
+    ap.add_argument('--step', type=float, help='s between the starts of two estimations (default: as they take)')
+    ap.add_argument('--threads', type=int, help='EstimationSettings.threads (default: the node\'s)')
+    ap.add_argument('--opencv-threads', type=int, help='cv2.setNumThreads before the first estimation')
+    ap.add_argument('--processes', action='store_true', help='as ~estimation_processes:=true')
+    args = ap.parse_args()
+    if not (args.data / 'truth.json').is_file():
+        sys.exit(f'replay_node: {args.data}/truth.json not found (--data)')
+    score = scorer()
+    if score is None:
+        sys.exit('replay_node: ../shared/eval/score.py not found: nothing to score')
+
+    import cv2
+    from multirobot_map_merge.grid import Grid
+    from multirobot_map_merge.pipeline import MergingPipeline
+    from multirobot_map_merge.ros.params import MapMergeParams
+    if args.opencv_threads is not None:
+        cv2.setNumThreads(args.opencv_threads)
+    settings = MapMergeParams(estimation_processes=args.processes).estimation_settings()
+    if args.threads is not None:
+        settings = settings.replace(threads=args.threads)
+    grids, truth = bench_merge.load_scenario(args.data)
+    orders = [reveal_order(g) for g in grids]
+    names = [f'robot_{k:02d}' for k in range(len(grids))]
+    pipeline = MergingPipeline(settings)
+    print(f'replay_node: {len(grids)} maps of {args.data.name}, revealed over {args.reveal:g} s, '
+          f'{"every %g s" % args.step if args.step else "one estimation after the other"}; '
+          f'threads {settings.threads}, processes {settings.processes}; {bench_merge.machine.describe()}')
+    clock, walls, cpus, wrong_estimations = 0.0, [], [], 0
+    while clock < args.until:
+        share = clock / args.reveal if args.reveal > 0 else 1.0
+        pipeline.feed([Grid(revealed(g, tiles, tiles_due(tiles, n, share)), g.resolution, g.origin, g.frame_id)
+                       for g, (tiles, n) in zip(grids, orders)])
+        wall, cpu = time.perf_counter(), time.process_time()
+        found = pipeline.estimate(previous=pipeline.transforms or None, names=names, now=clock)
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        walls.append(wall)
+        cpus.append(cpu)
+        # what the node publishes: the pipeline's transforms (kept placements, new ones once confirmed)
+        wrong = wrong_of(score_placements(score, truth, {k: t for k, t in enumerate(pipeline.transforms)
+                                                         if t is not None}))
+        wrong_estimations += bool(wrong)
+        print(f'  t={clock:6.1f} s  estimation {wall:5.2f} s  CPU {cpu:5.2f} s  placed '
+              f'{sum(t is not None for t in pipeline.transforms):2d}/{len(grids)}  held {found.held}  postponed '
+              f'{found.postponed}' + (f'  WRONG {"; ".join(f"{f} {r:.2f} deg {c:.1f} cells" for f, r, c in wrong)}'
+                                      if wrong else ''))
+        clock += args.step if args.step else max(RATE_PERIOD, wall)
+    print(f'{len(walls)} estimations: median {statistics.median(walls):.2f} s, longest {max(walls):.2f} s, CPU '
+          f'{sum(cpus):.1f} s in all (this process: its worker processes not included); '
+          f'{wrong_estimations} with a map placed wrong')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
