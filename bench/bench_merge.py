@@ -438,8 +438,7 @@ def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
     those placed wrong with their errors."""
     from multirobot_map_merge.estimation.estimator import estimate
     from multirobot_map_merge.estimation.settings import EstimationSettings
-    from multirobot_map_merge.grid import Grid
-    from reveal import reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of
+    from reveal import reveal_order, revealed_grids, score_placements, scorer, wrong_of
     score = scorer()
     if score is None:
         return ['bench_merge: ../shared/eval/score.py not found: nothing to score']
@@ -450,8 +449,7 @@ def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
              '| share revealed | known m2 (median map) | placed | placed wrong | estimate (s) | wrong: file, degrees, '
              'cells |', '|---|---|---|---|---|---|']
     for share in shares:
-        shown = [Grid(revealed(g, tiles, tiles_due(tiles, n, share)), g.resolution, g.origin, g.frame_id)
-                 for g, (tiles, n) in zip(grids, orders)]
+        shown = revealed_grids(grids, orders, share)
         found = estimate(shown, EstimationSettings())
         scored = score_placements(score, truth, dict(enumerate(found.transforms)))
         known = statistics.median(float((s.data >= 0).sum()) * s.resolution ** 2 for s in shown)

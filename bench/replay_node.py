@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 import bench_merge  # bench/, beside this script (puts the repository on sys.path)
-from reveal import reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of
+from reveal import reveal_order, revealed_grids, score_placements, scorer, wrong_of
 
 DATA = bench_merge.REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
 RATE_PERIOD = 2.0   # s: the node's default estimation_rate 0.5
@@ -47,7 +47,6 @@ def main() -> int:
         sys.exit('replay_node: ../shared/eval/score.py not found: nothing to score')
 
     import cv2
-    from multirobot_map_merge.grid import Grid
     from multirobot_map_merge.pipeline import MergingPipeline
     from multirobot_map_merge.ros.params import MapMergeParams
     if args.opencv_threads is not None:
@@ -65,8 +64,7 @@ def main() -> int:
     clock, walls, cpus, wrong_estimations = 0.0, [], [], 0
     while clock < args.until:
         share = clock / args.reveal if args.reveal > 0 else 1.0
-        pipeline.feed([Grid(revealed(g, tiles, tiles_due(tiles, n, share)), g.resolution, g.origin, g.frame_id)
-                       for g, (tiles, n) in zip(grids, orders)])
+        pipeline.feed(revealed_grids(grids, orders, share))
         wall, cpu = time.perf_counter(), time.process_time()
         found = pipeline.estimate(previous=pipeline.transforms or None, names=names, now=clock)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu

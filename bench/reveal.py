@@ -1,4 +1,5 @@
-"""Maps revealed as a fleet explores them, and the shared scorer: what bench_node and bench_merge --reveal share.
+"""Maps revealed as a fleet explores them, and the shared scorer: what bench_node, replay_node and bench_merge --reveal
+share.
 
 A robot's map is revealed in 2 m tiles of its final map, nearest to its start (its map frame's origin) first; at
 first only the tiles within START_RADIUS m are known. The shared scorer (../shared/eval/score.py) judges
@@ -44,6 +45,13 @@ def revealed(grid, tiles: List[Tuple[int, int]], n: int) -> np.ndarray:
 def tiles_due(tiles: List, n_start: int, share: float) -> int:
     """Tiles known once `share` (0..1) of the reveal has passed."""
     return max(n_start, int(math.ceil(len(tiles) * min(max(share, 0.0), 1.0))))
+
+
+def revealed_grids(grids: list, orders: List[Tuple[List[Tuple[int, int]], int]], share: float) -> list:
+    """The grids as known once `share` (0..1) of the reveal has passed; `orders`: their reveal_order()."""
+    from multirobot_map_merge.grid import Grid
+    return [Grid(revealed(g, tiles, tiles_due(tiles, n, share)), g.resolution, g.origin, g.frame_id)
+            for g, (tiles, n) in zip(grids, orders)]
 
 
 def scorer():
