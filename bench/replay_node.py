@@ -2,7 +2,7 @@
 """The map_merge node's estimations replayed offline (not a test: it prints figures).
 
     scripts/env.sh python bench/replay_node.py [--until 90] [--reveal 60] [--step S] [--threads N]
-        [--opencv-threads N] [--processes]
+        [--opencv-threads N] [--processes] [--search-budget S]
 
 The 30-map scenario (../shared/data/dev/large30_hospital_section) revealed as bench_node publishes it (bench/reveal.py:
 2 m tiles, nearest to each robot's start first, all known after --reveal s), estimated as the node estimates it (its
@@ -13,7 +13,9 @@ shared scorer finds placed wrong; then the median and longest estimation and the
 
 What bench_node measures live comes with its noise (the same code: median 2.5-3.7 s from one run to the next, with
 the publisher and roscore on the same two cores); with --step the same maps are estimated at the same times in every
-run, so two revisions or settings can be compared on their CPU time, and every estimation is scored.
+run, so two revisions or settings can be compared on their CPU time, and every estimation is scored. Their
+results still differ a little from run to run: the node's search budget is wall time (--search-budget inf: none,
+the same results in every run, and the first estimations take half a minute each).
 """
 from __future__ import annotations
 
@@ -39,6 +41,8 @@ def main() -> int:
     ap.add_argument('--threads', type=int, help='EstimationSettings.threads (default: the node\'s)')
     ap.add_argument('--opencv-threads', type=int, help='cv2.setNumThreads before the first estimation')
     ap.add_argument('--processes', action='store_true', help='as ~estimation_processes:=true')
+    ap.add_argument('--search-budget', type=float, help='s of correlation search per estimation (default: the '
+                                                        'node\'s; inf: no limit)')
     args = ap.parse_args()
     if not (args.data / 'truth.json').is_file():
         sys.exit(f'replay_node: {args.data}/truth.json not found (--data)')
@@ -54,6 +58,8 @@ def main() -> int:
     settings = MapMergeParams(estimation_processes=args.processes).estimation_settings()
     if args.threads is not None:
         settings = settings.replace(threads=args.threads)
+    if args.search_budget is not None:
+        settings = settings.replace(search_budget_s=args.search_budget)
     grids, truth = bench_merge.load_scenario(args.data)
     orders = [reveal_order(g) for g in grids]
     names = [f'robot_{k:02d}' for k in range(len(grids))]
