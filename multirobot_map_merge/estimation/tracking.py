@@ -134,15 +134,6 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
 
     # maps the same as in the last estimation: the maps around a placement have stopped changing when all have
     settled = {names[k] for k in placed if memory.latest.get(names[k]) == contents[k]}
-    # the placements held for confirmation (confirmation.py) are no evidence for each other: the check of a held one
-    # looks at the confirmed ones, so that maps held together cannot confirm each other (30 robots revealed,
-    # bench/replay_node.py with no search budget: eight maps held together about 1 degree off were confirmed by their
-    # checks against each other and published for four estimations); a held grid that meets none is dropped here and
-    # placed again by the growth (then confirmed if at the same place)
-    held = {k for k in placed if names[k] in memory.held}
-
-    def evidence(k: int) -> Dict[int, np.ndarray]:
-        return {m: t for m, t in placed.items() if m == k or m not in held} if k in held else placed
 
     def seen(k: int) -> Dict[Hashable, str]:
         """The contents of the maps a check of grid k looks at: its own and the placed ones near it."""
@@ -153,7 +144,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         near = seen(k)
         if verdict is not None and verdict_stands(verdict, grids[k], placed[k], near, settled.issuperset(near)):
             return Check(k, placed[k], verdict.match)
-        c = recheck(k, grids, prepared, evidence(k), footprints, res, kept_settings)
+        c = recheck(k, grids, prepared, placed, footprints, res, kept_settings)
         rechecked[k] = c
         if c.transform is None:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
             memory.checks.drop(names[k])
