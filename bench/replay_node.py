@@ -7,9 +7,9 @@
 The 30-map scenario (../shared/data/dev/large30_hospital_section) revealed as bench_node publishes it (bench/reveal.py:
 2 m tiles, nearest to each robot's start first, all known after --reveal s), estimated as the node estimates it (its
 settings, one pipeline with its memory, each estimation tracking the last one's placements) at the times of a
-clock: the next estimation starts --step s after the last one started, or (no --step) once it has ended, at least 2 s
-later (the node's estimation_rate 0.5). Prints per estimation its wall and CPU time, the maps placed and those the
-shared scorer finds placed wrong; then the median and longest estimation and the CPU of all of them.
+clock: the next estimation starts --step s after the last one started, or (no --step) once it has ended, at least
+one period of the node's default estimation_rate later. Prints per estimation its wall and CPU time, the maps placed
+and those the shared scorer finds placed wrong; then the median and longest estimation and the CPU of all of them.
 
 What bench_node measures live comes with its noise (the same code: median 2.5-3.7 s from one run to the next, with
 the publisher and roscore on the same two cores); with --step the same maps are estimated at the same times in every
@@ -29,7 +29,6 @@ import bench_merge  # bench/, beside this script (puts the repository on sys.pat
 from reveal import reveal_order, revealed_grids, score_placements, scorer, wrong_of
 
 DATA = bench_merge.REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
-RATE_PERIOD = 2.0   # s: the node's default estimation_rate 0.5
 
 
 def main() -> int:
@@ -55,7 +54,9 @@ def main() -> int:
     from multirobot_map_merge.ros.params import MapMergeParams
     if args.opencv_threads is not None:
         cv2.setNumThreads(args.opencv_threads)
-    settings = MapMergeParams(estimation_processes=args.processes).estimation_settings()
+    params = MapMergeParams(estimation_processes=args.processes)
+    period = 1.0 / params.estimation_rate   # the node's estimation loop at its default rate
+    settings = params.estimation_settings()
     if args.threads is not None:
         settings = settings.replace(threads=args.threads)
     if args.search_budget is not None:
@@ -84,7 +85,7 @@ def main() -> int:
               f'{sum(t is not None for t in pipeline.transforms):2d}/{len(grids)}  held {found.held}  postponed '
               f'{found.postponed}' + (f'  WRONG {"; ".join(f"{f} {r:.2f} deg {c:.1f} cells" for f, r, c in wrong)}'
                                       if wrong else ''))
-        clock += args.step if args.step else max(RATE_PERIOD, wall)
+        clock += args.step if args.step else max(period, wall)
     print(f'{len(walls)} estimations: median {statistics.median(walls):.2f} s, longest {max(walls):.2f} s, CPU '
           f'{sum(cpus):.1f} s in all (this process: its worker processes not included); '
           f'{wrong_estimations} with a map placed wrong')
