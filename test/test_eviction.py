@@ -220,6 +220,23 @@ def test_maps_searched_at_the_end_single_out_a_broken_member_and_join_once_it_le
     for k in (3, 4):
         rot, shift = tf.difference(group.members[k], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
         assert rot < 0.01 and shift < 0.1
+    # searched again at the very end, the broken map does not join: the merge contradicts its turned part
+    assert grower.search_left_out(group, readmit=True) == 0 and 0 not in group.members and 0 in grower.evicted
+
+
+def test_a_right_member_taken_out_joins_again_at_the_end():
+    """search_left_out(readmit=True): a member taken out on one map's word (a broken map placed at a round hall's
+    hub by one part voted out the right map that had seen the hub) is searched onto the merge at the end of an
+    estimation afresh and joins again, at its place, by the rules of the maps left out."""
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 130, 300), seen(world, 60, 240), seen(world, 70, 250)]
+    grower, group = _merge_of(grids, [0, 1, 2, 3])
+    grower._evict(group, 2, 'singled out by one map')
+    assert sorted(group.members) == [0, 1, 3] and grower.search_left_out(group) == 0   # not left out: taken out
+    assert grower.search_left_out(group, readmit=True) == 1
+    assert sorted(group.members) == [0, 1, 2, 3] and not grower.evicted
+    rot, shift = tf.difference(group.members[2], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+    assert rot < 0.01 and shift < 0.1
 
 
 def test_a_member_leaves_at_the_end_only_to_let_a_map_in():

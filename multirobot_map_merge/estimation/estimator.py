@@ -325,6 +325,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 if not settings.evict or not grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
                     break
                 chosen = largest()
+            if settings.evict:
+                grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings)

@@ -580,31 +580,8 @@ class Grower:
         pk = self.prepared[k]
         return overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2
 
-    def search_left_out(self, group: Group) -> int:
-        """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
-        union (a refused match found where they overlap it; not those searched since it last grew by a quarter,
-        SEARCH_GROWTH), and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
-        the grid's known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
-        none. Returns how many joined. The searches count against the search budget as the growth's do.
-
-        The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
-        broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
-        place agrees wall for wall. On the generated 36-map buildings (seeds 0-2) the searches at the end placed 26
-        more maps right. Their placements shared 0.49-1.00 of the map's area with the merge; those of broken maps
-        that passed the rules, one part fitting (the hub of a round hall, 29-38 m2), 0.08-0.35. One right map that a
-        single member agreed with was placed 3 cells off.
-
-        While maps join, those whose placement passed the rules but shared too little are judged again there on the
-        grown merge (LEFT_OUT_ROUNDS rounds in all), and searched again where it refuses them: the true place beside a
-        map that just joined shares more (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2
-        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the
-        growth's are: at the end of an estimation afresh they vote on the members (evict_contradicted, estimator.py).
-        Called again, it searches a grid searched before only where the verdict can have changed: its placement
-        passed the pair rules and the members have changed since, or a member that its matches saw or its last
-        placement overlaps has left."""
-        if self.search_seconds >= self.s.search_budget_s:
-            return 0
-        union = group.union.prepared()
+    def _left_out_todo(self, group: Group, union: PreparedGrid) -> List[int]:
+        """The grids search_left_out searches onto the merge `group` (its prepared `union`): see there."""
         gone = self.evicted - self.left_out_evicted   # members taken out since the last call
         changed = frozenset(group.members) != self.left_out_members
         self.left_out_evicted = set(self.evicted)
@@ -628,6 +605,42 @@ class Grower:
                 # searched at the end already and refused, and no member it saw has left since: the same verdict
                 continue
             todo.append(k)
+        return todo
+
+    def search_left_out(self, group: Group, readmit: bool = False) -> int:
+        """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
+        union (a refused match found where they overlap it; not those searched since it last grew by a quarter,
+        SEARCH_GROWTH), and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
+        the grid's known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
+        none. Returns how many joined. The searches count against the search budget as the growth's do.
+
+        The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
+        broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
+        place agrees wall for wall. On the generated 36-map buildings (seeds 0-2) the searches at the end placed 26
+        more maps right. Their placements shared 0.49-1.00 of the map's area with the merge; those of broken maps
+        that passed the rules, one part fitting (the hub of a round hall, 29-38 m2), 0.08-0.35. One right map that a
+        single member agreed with was placed 3 cells off.
+
+        While maps join, those whose placement passed the rules but shared too little are judged again there on the
+        grown merge (LEFT_OUT_ROUNDS rounds in all), and searched again where it refuses them: the true place beside a
+        map that just joined shares more (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2
+        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the
+        growth's are: at the end of an estimation afresh they vote on the members (evict_contradicted, estimator.py).
+        Called again, it searches a grid searched before only where the verdict can have changed: its placement
+        passed the pair rules and the members have changed since, or a member that its matches saw or its last
+        placement overlaps has left.
+
+        With `readmit`, it searches the members taken out instead (evict_contradicted), once the maps left out have
+        had their rounds: a member one map singled out can be right and that map wrong (the generated radial hall: a
+        broken map placed at the hub by one part voted out the right map that had seen the hub); it joins again by
+        the same rules (a broken member taken out in hospital36 seed 1: its search found no place they accept)."""
+        if self.search_seconds >= self.s.search_budget_s:
+            return 0
+        union = group.union.prepared()
+        if readmit:
+            todo = sorted(k for k in self.evicted if k not in group.members and self.prepared[k] is not None)
+        else:
+            todo = self._left_out_todo(group, union)
         self.left_out_footprints.update(group.union.footprints)
         joined, placed = 0, []
         for _ in range(LEFT_OUT_ROUNDS):
@@ -647,8 +660,9 @@ class Grower:
                 if len(agreeing) >= MIN_AGREEING and not contradicting:
                     joining.append(m)
             for m in joining:
-                log.debug('grid %d left out joins the merge: a search onto it places it agreeing with members %s',
-                          m.i, sorted(group.members))
+                log.debug('grid %d %s joins the merge: a search onto it places it agreeing with members %s', m.i,
+                          'taken out' if m.i in self.evicted else 'left out', sorted(group.members))
+                self.evicted.discard(m.i)
                 self._join(group, m)
             joined += len(joining)
             for m in matches:
