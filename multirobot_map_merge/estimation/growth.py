@@ -580,8 +580,8 @@ class Grower:
         pk = self.prepared[k]
         return overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2
 
-    def _left_out_todo(self, group: Group, union: PreparedGrid) -> List[int]:
-        """The grids search_left_out searches onto the merge `group` (its prepared `union`): see there."""
+    def _left_out_todo(self, group: Group) -> List[int]:
+        """The grids search_left_out searches onto the merge `group`: see there."""
         gone = self.evicted - self.left_out_evicted   # members taken out since the last call
         changed = frozenset(group.members) != self.left_out_members
         self.left_out_evicted = set(self.evicted)
@@ -595,12 +595,9 @@ class Grower:
             box = self.left_out_boxes.get(k, False)
             saw_gone = any(members & gone for members in found) \
                 or (box is not False and any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone))
-            last = self.memory.searches.get((self.names[k], self.names[group.seed]))
-            if last is not None and union.known_pixels < SEARCH_GROWTH * last[1] and not saw_gone:
-                # searched onto a union not much smaller; but a member it saw has left since, the verdict can change
-                # (generated maze36: a map that voted a broken member out was not searched again, the merge having
-                # grown by less than a quarter since, and stayed out)
-                continue
+            # searched by the growth or not, once here: the union it was searched onto may have had other members
+            # (generated pillar_hall36 seed 2: map_19, searched onto a group that then merged with another and grew
+            # by a fifth, agreed 0.85 there and 1.000 on the final merge)
             if box is not False and not (changed and k in self.left_out_accepted) and not saw_gone:
                 # searched at the end already and refused, and no member it saw has left since: the same verdict
                 continue
@@ -609,8 +606,8 @@ class Grower:
 
     def search_left_out(self, group: Group, readmit: bool = False) -> int:
         """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
-        union (a refused match found where they overlap it; not those searched since it last grew by a quarter,
-        SEARCH_GROWTH), and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
+        union as it ends (a refused match found where they overlap it, or a search onto the union of other members),
+        and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
         the grid's known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
         none. Returns how many joined. The searches count against the search budget as the growth's do.
 
@@ -640,7 +637,7 @@ class Grower:
         if readmit:
             todo = sorted(k for k in self.evicted if k not in group.members and self.prepared[k] is not None)
         else:
-            todo = self._left_out_todo(group, union)
+            todo = self._left_out_todo(group)
         self.left_out_footprints.update(group.union.footprints)
         joined, placed = 0, []
         for _ in range(LEFT_OUT_ROUNDS):
