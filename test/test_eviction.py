@@ -214,8 +214,8 @@ def test_maps_searched_at_the_end_single_out_a_broken_member_and_join_once_it_le
     assert grower.search_left_out(group) == 0
     assert {k for k, _ in grower.refused_onto} == {3, 4}
     assert grower.evict_contradicted(group, [group], [], make_room=True) and sorted(group.members) == [1, 2]
-    # as if the growth had searched them onto the merge as large as it is now: a member they saw has left since, so
-    # they are searched again all the same (generated maze36: a map that voted a broken member out stayed out)
+    # as if the growth had searched them onto the merge as large as it is now: searched again all the same (generated
+    # maze36: a map that voted a broken member out was not, and stayed out)
     for k in (3, 4):
         grower.memory.searches.put((grower.names[k], grower.names[group.seed]),
                                    (grids[k], group.union.known_pixels, frozenset(grower.names[m] for m in (1, 2))))

@@ -592,12 +592,13 @@ class Grower:
             found = self.found.get(k, ())
             if not any(members - self.evicted <= group.members.keys() for members in found):
                 continue   # no match found where it overlaps the merge: the growth searched it (_search)
+            # a search of the growth onto the merge does not count here, however little the merge has grown since:
+            # the union it was searched onto may have had other members (generated pillar_hall36 seed 2: map_19,
+            # searched onto a group that then merged with another and grew by a fifth, agreed 0.85 there and 1.000
+            # on the final merge)
             box = self.left_out_boxes.get(k, False)
             saw_gone = any(members & gone for members in found) \
                 or (box is not False and any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone))
-            # searched by the growth or not, once here: the union it was searched onto may have had other members
-            # (generated pillar_hall36 seed 2: map_19, searched onto a group that then merged with another and grew
-            # by a fifth, agreed 0.85 there and 1.000 on the final merge)
             if box is not False and not (changed and k in self.left_out_accepted) and not saw_gone:
                 # searched at the end already and refused, and no member it saw has left since: the same verdict
                 continue
@@ -605,10 +606,10 @@ class Grower:
         return todo
 
     def search_left_out(self, group: Group, readmit: bool = False) -> int:
-        """Search the grids left out of the merge (`group`; not those evicted) that the growth did not search onto its
-        union as it ends (a refused match found where they overlap it, or a search onto the union of other members),
-        and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of
-        the grid's known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
+        """Search the grids left out of the merge (`group`; not those evicted) whose refused match found where they
+        overlap its members (the others the growth searched onto it, _search), whether or not the growth searched them
+        since, and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's
+        known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
         none. Returns how many joined. The searches count against the search budget as the growth's do.
 
         The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
