@@ -246,12 +246,18 @@ def test_no_worker_outlives_a_killed_estimating_process(repo_root):
     assert not any(_alive(p) for p in pids)
 
 
+def _as_in_a_terminal():
+    """A child started as from a terminal: SIGINT at its default whatever this process inherited (a suite started in
+    the background by a shell ignores SIGINT, and so would the child's Python, never raising KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_leaves_the_workers_to_the_estimating_process(repo_root):
     """Ctrl-C reaches the whole process group: idle workers ignore it (each printed a traceback), the estimating
     process answers it."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(repo_root), os.environ.get('PYTHONPATH')])))
     holder = subprocess.Popen([sys.executable, '-c', HOLDER], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                              text=True, env=env, start_new_session=True)
+                              text=True, env=env, start_new_session=True, preexec_fn=_as_in_a_terminal)
     try:
         json.loads(holder.stdout.readline())
         time.sleep(0.5)   # the workers wait for work
@@ -282,7 +288,7 @@ def test_ctrl_c_ends_merge_maps_and_its_workers_with_one_line(repo_root, shared_
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(repo_root), os.environ.get('PYTHONPATH')])))
     merge = subprocess.Popen([sys.executable, str(repo_root / 'nodes' / 'merge_maps'), '--output',
                               str(tmp_path / 'merged'), *maps], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                             text=True, env=env, start_new_session=True)
+                             text=True, env=env, start_new_session=True, preexec_fn=_as_in_a_terminal)
     try:
         for line in merge.stderr:   # bounded: merge_maps ends
             if 'estimating transforms' in line:
