@@ -43,7 +43,8 @@ def warp_into(canvas: np.ndarray, src: np.ndarray, src_to_canvas: np.ndarray) ->
 
 def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.ndarray]],
             resolution: Optional[float] = None, frame_id: str = '',
-            left_out: Optional[Dict[int, str]] = None, max_cells: int = MAX_CELLS) -> Optional[Grid]:
+            left_out: Optional[Dict[int, str]] = None, max_cells: int = MAX_CELLS,
+            within: Optional[Tuple[float, float, float, float]] = None) -> Optional[Grid]:
     """Merge grids placed by metric transforms (map frame of grid k -> merged frame).
 
     The merged grid has `resolution` (default: that of the first placed grid whose transform is the identity, else
@@ -51,7 +52,9 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     and its origin is the corner of the smallest canvas holding every known cell. Returns None when no grid with a
     known cell is placed. A grid whose placement is not finite, or that would make the merged grid larger than
     `max_cells` (at most MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and
-    the reason.
+    the reason. With `within` (x0, y0, x1, y1, metres of the merged frame), only the cells of the merged grid that
+    meet that box are composed and returned (None if none): the same cells as the whole merged grid cropped there,
+    without warping the rest.
     GridError only for a bad `resolution` argument.
     """
     placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))
@@ -99,11 +102,19 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     lo = np.floor(box[:, :2].min(axis=0)) * resolution
     hi = np.ceil(box[:, 2:].max(axis=0)) * resolution
     width, height = (int(round(v)) for v in (hi - lo) / resolution)
-    canvas = np.full((max(height, 1), max(width, 1)), UNKNOWN, np.int8)
-    merged_to_canvas = tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1])
+    c0, r0, c1, r1 = 0, 0, max(width, 1), max(height, 1)
+    if within is not None:
+        c0, r0 = max(int(math.floor((within[0] - lo[0]) / resolution)), 0), \
+            max(int(math.floor((within[1] - lo[1]) / resolution)), 0)
+        c1, r1 = min(int(math.ceil((within[2] - lo[0]) / resolution)), c1), \
+            min(int(math.ceil((within[3] - lo[1]) / resolution)), r1)
+        if c1 <= c0 or r1 <= r0:
+            return None
+    canvas = np.full((r1 - r0, c1 - c0), UNKNOWN, np.int8)
+    merged_to_canvas = tf.translation(-c0, -r0) @ tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1])
     for _, data, crop_to_merged in parts:
         warp_into(canvas, data, merged_to_canvas @ crop_to_merged)
-    return Grid(canvas, resolution, (float(lo[0]), float(lo[1]), 0.0), frame_id)
+    return Grid(canvas, resolution, (float(lo[0]) + c0 * resolution, float(lo[1]) + r0 * resolution, 0.0), frame_id)
 
 
 def _select(metric: Dict[int, np.ndarray], resolution: float, max_cells: int) -> Tuple[List[int], Dict[int, str]]:

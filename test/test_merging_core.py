@@ -28,6 +28,32 @@ def test_compose_takes_signed_maximum():
     assert merged.data.tolist() == [[0, 0, 100, 37]]
 
 
+def test_compose_within_a_box_gives_the_cells_of_the_whole_merge_there():
+    seed = 11
+    print('seed', seed)
+    rng = np.random.default_rng(seed)
+    grids = [Grid(rng.choice(np.array([-1, 0, 100], np.int8), (40, 50)), 0.05, (rng.uniform(-1, 1), rng.uniform(-1, 1),
+                                                                             0.0)) for _ in range(3)]
+    shifts = [tf.translation(0.0, 0.0), tf.translation(0.7, -0.4), tf.translation(-0.9, 1.2)]
+    whole = compose(grids, shifts, 0.05)
+    box = (whole.origin[0] + 0.52, whole.origin[1] + 0.31, whole.origin[0] + 1.73, whole.origin[1] + 2.04)
+    part = compose(grids, shifts, 0.05, within=box)
+    c0, r0 = (int(math.floor((box[n] - whole.origin[n]) / 0.05)) for n in (0, 1))
+    assert part.origin[:2] == pytest.approx((whole.origin[0] + c0 * 0.05, whole.origin[1] + r0 * 0.05))
+    rows, cols = part.data.shape
+    assert (rows, cols) == (35, 25)
+    assert np.array_equal(part.data, whole.data[r0:r0 + rows, c0:c0 + cols])
+    # turned grids: warped in other windows, a cell on a rounding edge may differ
+    turned = [tf.rigid(0.3, -0.2, 0.4), tf.rigid(-0.5, 0.6, -1.1), tf.rigid(0.1, 0.1, 2.0)]
+    whole = compose(grids, turned, 0.05)
+    box = (whole.origin[0] + 0.5, whole.origin[1] + 0.5, whole.origin[0] + 2.0, whole.origin[1] + 2.5)
+    part = compose(grids, turned, 0.05, within=box)
+    c0, r0 = (int(math.floor((box[n] - whole.origin[n]) / 0.05)) for n in (0, 1))
+    rows, cols = part.data.shape
+    assert np.count_nonzero(part.data != whole.data[r0:r0 + rows, c0:c0 + cols]) <= 2
+    assert compose(grids, shifts, 0.05, within=(50.0, 50.0, 51.0, 51.0)) is None   # nothing there
+
+
 def test_known_pose_places_cells_in_metres():
     data = np.full((20, 30), -1, np.int8)
     data[5, 7] = 100

@@ -7,7 +7,6 @@ the members' own, pooled (features.pooled_keypoints), so they grow with the grou
 """
 from __future__ import annotations
 
-import math
 from typing import Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
@@ -58,26 +57,14 @@ def most_overlapping(box: Optional[Box], footprints: Dict[int, Box], candidates)
     return best
 
 
-def crop(grid: Grid, box: Box) -> Optional[Grid]:
-    """The part of an unrotated grid (origin yaw 0) inside a metric box, or None if they do not meet."""
-    res = grid.resolution
-    c0 = max(int(math.floor((box[0] - grid.origin[0]) / res)), 0)
-    r0 = max(int(math.floor((box[1] - grid.origin[1]) / res)), 0)
-    c1 = min(int(math.ceil((box[2] - grid.origin[0]) / res)), grid.width)
-    r1 = min(int(math.ceil((box[3] - grid.origin[1]) / res)), grid.height)
-    if c1 <= c0 or r1 <= r0:
-        return None
-    return Grid(grid.data[r0:r1, c0:c1], res, (grid.origin[0] + c0 * res, grid.origin[1] + r0 * res, 0.0),
-                grid.frame_id)
-
-
 def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarray], near: Sequence[int],
                  box: Box, resolution: float) -> Optional[Grid]:
-    """The union of the placed grids `near` (those whose footprint meets `box`), cropped to the box."""
+    """The union of the placed grids `near` (those whose footprint meets `box`), cropped to the box (composed only
+    there: the grids near a robot's map are mostly elsewhere, and tracking composes one such union per placed map in
+    every estimation)."""
     if not near:
         return None
-    union = compose([grids[k] for k in near], [transforms[k] for k in near], resolution)
-    return crop(union, box) if union is not None else None
+    return compose([grids[k] for k in near], [transforms[k] for k in near], resolution, within=box)
 
 
 class UnionMap:
