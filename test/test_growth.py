@@ -505,3 +505,35 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
     searched = {e[1]: n for n, e in reversed(list(enumerate(events))) if e[0] == 'search'}   # grid: first search
     assert set(searched) == {3, 4, 5}
     assert searched[4] > regrouped and searched[5] > regrouped
+
+
+def test_tracking_checks_again_only_the_placements_that_saw_the_map_it_dropped(monkeypatch):
+    """After the worst failing placement is dropped, a check whose maps did not include it would be the same check
+    on the same maps: only the placements near the dropped one are checked again, and the verdicts are those of
+    checking them all again."""
+    from concurrent.futures import ThreadPoolExecutor
+    from multirobot_map_merge.estimation import tracking
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+
+    grids = [Grid(np.zeros((20, 20), np.int8), 0.05) for _ in range(5)]   # 1 m squares of free floor
+    # 0 the reference; 1 wrong, which makes its neighbour 2 fail too; 3 and 4 far from both
+    previous = [tf.translation(x, 0.0) for x in (0.0, 0.5, 1.2, 10.0, 11.5)]
+    made = []
+
+    def recheck(k, grids, prepared, placed, footprints, res, s, refine=True, failing='no longer holds'):
+        made.append(k)
+        fails = k == 1 or (k == 2 and 1 in placed)
+        match = PairMatch(k, 0, best=Placement(np.eye(3), agreement=0.5 if k == 1 else (0.8 if fails else 1.0)))
+        if fails:
+            match.reason = failing
+        return tracking.Check(k, None if fails else placed[k], match)
+
+    monkeypatch.setattr(tracking, 'recheck', recheck)
+    monkeypatch.setattr(tracking, 'relax_placed', lambda *a: set())
+    with ThreadPoolExecutor(1) as pool:
+        placed, checks = tracking.track(previous, 0, grids, [object()] * 5, 0.05, EstimationSettings(), pool,
+                                        EstimationMemory(), list('abcde'), ['same'] * 5)
+    assert sorted(placed) == [0, 2, 3, 4]   # 1 dropped, 2 holds without it
+    assert sorted(made) == [0, 1, 2, 2, 3, 4]   # 3 and 4 once (before: twice), the reference at the end

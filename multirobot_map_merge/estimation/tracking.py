@@ -157,17 +157,18 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
     for _ in range(MAX_PASSES):
         for c in pool.map(check, to_check):
             checks[c.k] = c
-        failed = [k for k in to_check if checks[k].transform is None]
+        failed = [k for k in placed if k != reference and checks[k].transform is None]
         if not failed:
             break
-        # one wrong map makes its neighbours contradict too: drop the worst, then check the others without it
+        # one wrong map makes its neighbours contradict too: drop the worst, then check the others without it; a
+        # check sees only the placed grids near its own, so only those that saw the worst one can come out otherwise
+        # (the others would be made again on the same maps: a fleet's final check of 24 placements made 47)
         worst = least_agreeing([checks[k] for k in failed]).k
         del placed[worst]
-        to_check = [k for k in placed if k != reference]
-        if not to_check:
-            break
+        to_check = [k for k in placed if k != reference
+                    and overlap_area(footprints.get(worst), context(k, placed, footprints)[0]) > 0.0]
     else:
-        for k in [k for k in to_check if checks[k].transform is None]:
+        for k in [k for k in placed if k != reference and checks[k].transform is None]:
             del placed[k]
     for k in placed:
         if k != reference:
