@@ -31,8 +31,6 @@ if TYPE_CHECKING:
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.eviction')
 
 MIN_AGREEING = 2   # members that must agree with a map left out for its contradiction of one other to count
-MIN_VOTES = 2      # maps left out that must single out the same member (one map's placement may be wrong itself),
-MANY_AGREEING = 3  # unless that many members agree with the one map that does
 
 
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
@@ -68,12 +66,15 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
     that match's other places (PairMatch.other_places_m) where it does, agrees with at
-    least MIN_AGREEING members and contradicts this one alone. A member singled out by MIN_VOTES maps, or by one
-    that MANY_AGREEING members agree with, is returned, the most singled out first. With `seen` (grid -> the members
-    its refused match was made against), a map votes only against a member its match saw; `voters`, if given, is
-    filled with member -> [(grid, the place it voted from)]."""
+    least MIN_AGREEING members and contradicts this one alone. Every member so singled out is returned, the most
+    singled out first: one map's word is enough, though that map can be the wrong one, since the members taken out
+    are searched onto the final merge and join it again where it accepts them (Grower.search_left_out(readmit=True)).
+    When two maps, or one that three members agreed with, had to single a member out, the broken map_00 of the
+    generated hospital36, which one map left out singled out with two members agreeing, kept right maps out (seeds
+    0-2: 18, 18 and 17 of 27 right, against 19, 18 and 20 so; the right map_18 that a lone map takes out there joins
+    again). With `seen` (grid -> the members its refused match was made against), a map votes only against a member
+    its match saw; `voters`, if given, is filled with member -> [(grid, the place it voted from)]."""
     votes: Counter = Counter()
-    strong: Dict[int, bool] = {}
     if len(members) <= MIN_AGREEING:
         return []
     for k in left_out:
@@ -96,7 +97,6 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         votes[j] += 1
         if voters is not None:
             voters.setdefault(j, []).append((k, place))
-        strong[j] = strong.get(j, False) or len(agreeing) >= MANY_AGREEING
         log.debug('grid %d left out agrees with members %s of the merge and contradicts member %d alone', k,
                   agreeing, j)
-    return [j for j, n in votes.most_common() if n >= MIN_VOTES or strong[j]]
+    return [j for j, _ in votes.most_common()]
