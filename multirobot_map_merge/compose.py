@@ -53,8 +53,8 @@ def compose(grids: Sequence[Optional[Grid]], transforms: Sequence[Optional[np.nd
     known cell is placed. A grid whose placement is not finite, or that would make the merged grid larger than
     `max_cells` (at most MAX_CELLS), is left out (see select_parts); `left_out` (if given) receives its index and
     the reason. With `within` (x0, y0, x1, y1, metres of the merged frame), only the cells of the merged grid that
-    meet that box are composed and returned (None if none): the same cells as the whole merged grid cropped there,
-    without warping the rest.
+    meet that box are composed and returned (None if none): the whole merged grid's cells there, without warping the
+    rest (but for a cell now and then on a rounding edge of a turned grid: OpenCV rounds within its output window).
     GridError only for a bad `resolution` argument.
     """
     placed = [(k, g, t) for k, (g, t) in enumerate(zip(grids, transforms))

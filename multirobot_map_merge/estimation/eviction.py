@@ -67,12 +67,9 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
     that match's other places (PairMatch.other_places_m) where it does, agrees with at
     least MIN_AGREEING members and contradicts this one alone. Every member so singled out is returned, the most
-    singled out first: one map's word is enough, though that map can be the wrong one, since the members taken out
-    are searched onto the final merge and join it again where it accepts them (Grower.search_left_out(readmit=True)).
-    When two maps, or one that three members agreed with, had to single a member out, the broken map_00 of the
-    generated hospital36, which one map left out singled out with two members agreeing, kept right maps out (seeds
-    0-2: 18, 18 and 17 of 27 right, against 19, 18 and 20 so; the right map_18 that a lone map takes out there joins
-    again). With `seen` (grid -> the members its refused match was made against), a map votes only against a member
+    singled out first: one map's word is enough although that map can be the wrong one, since a member taken out is
+    searched onto the final merge and joins again where it is accepted (Grower.search_left_out(readmit=True)); with
+    two maps needed, the broken map_00 of generated hospital36, singled out by one, kept right maps out. With `seen` (grid -> the members its refused match was made against), a map votes only against a member
     its match saw; `voters`, if given, is filled with member -> [(grid, the place it voted from)]."""
     votes: Counter = Counter()
     if len(members) <= MIN_AGREEING:

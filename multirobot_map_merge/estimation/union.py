@@ -60,8 +60,8 @@ def most_overlapping(box: Optional[Box], footprints: Dict[int, Box], candidates)
 def compose_near(grids: Sequence[Optional[Grid]], transforms: Dict[int, np.ndarray], near: Sequence[int],
                  box: Box, resolution: float) -> Optional[Grid]:
     """The union of the placed grids `near` (those whose footprint meets `box`), cropped to the box (composed only
-    there: the grids near a robot's map are mostly elsewhere, and tracking composes one such union per placed map in
-    every estimation)."""
+    there: the grids near a robot's map reach beyond it, and tracking composes one such union per placed map in every
+    estimation)."""
     if not near:
         return None
     return compose([grids[k] for k in near], [transforms[k] for k in near], resolution, within=box)
