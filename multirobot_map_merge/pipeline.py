@@ -18,7 +18,7 @@ import numpy as np
 
 from . import transforms as tf
 from .admission import admit
-from .compose import compose
+from .compose import PatchCache, compose
 from .estimation.estimator import Estimate, estimate
 from .estimation.features import FeatureCache
 from .estimation.growth import Progress
@@ -42,6 +42,7 @@ class MergingPipeline:
         self.reference: Optional[int] = None
         self.last_estimate: Optional[Estimate] = None
         self.compose_seconds = 0.0
+        self.patches = PatchCache()   # what each grid added to the last merged grid (compose.PatchCache)
         self.invalid_cells: Dict[int, int] = {}   # grid index -> cells read as unknown by the last feed
         self.refused: Dict[int, str] = {}         # grid index -> why the last feed left it out
         self.left_out: Dict[int, str] = {}        # grid index -> why the last compose left it out
@@ -99,7 +100,8 @@ class MergingPipeline:
         if self.reference is not None and self.grids[self.reference] is not None:
             resolution = self.grids[self.reference].resolution
         self.left_out = {}
-        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out, max_cells)
+        merged = compose(self.composable, self.transforms, resolution, frame_id, self.left_out, max_cells,
+                         cache=self.patches)
         self.compose_seconds = time.perf_counter() - t0
         return merged
 

@@ -11,7 +11,7 @@ import pytest
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.cli import main as merge_maps
-from multirobot_map_merge.compose import compose
+from multirobot_map_merge.compose import PatchCache, compose
 from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.known_poses import InitPose
@@ -52,6 +52,40 @@ def test_compose_within_a_box_gives_the_cells_of_the_whole_merge_there():
     rows, cols = part.data.shape
     assert np.count_nonzero(part.data != whole.data[r0:r0 + rows, c0:c0 + cols]) <= 2
     assert compose(grids, shifts, 0.05, within=(50.0, 50.0, 51.0, 51.0)) is None   # nothing there
+
+
+def test_compose_with_a_cache_gives_the_merge_composed_afresh_as_maps_change_move_and_leave():
+    """The node composes again and again with one PatchCache: a map replaced (a new Grid, its cells changed in
+    place of a copy), a placement moved, a map that grows the canvas, a robot gone, a map back where it was; each
+    merge has the cells and origin of the same merge composed without the cache."""
+    seed = 5
+    print('seed', seed)
+    rng = np.random.default_rng(seed)
+    values = np.array([-1, 0, 100], np.int8)
+    grids = [Grid(rng.choice(values, (30 + 5 * k, 40)), 0.05, (rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0))
+             for k in range(4)]
+    placed = [tf.rigid(rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-3, 3)) for _ in grids]
+    cache = PatchCache()
+    for step in range(40):
+        k = int(rng.integers(len(grids)))
+        change = step % 5
+        if change == 0:   # new cells, a new grid object
+            data = grids[k].data.copy()
+            data[rng.integers(data.shape[0]), :] = 100
+            grids[k] = Grid(data, grids[k].resolution, grids[k].origin)
+        elif change == 1:   # moved a little
+            placed[k] = tf.rigid(0.01, -0.02, 0.003) @ placed[k]
+        elif change == 2:   # far out: the canvas grows, every map lands on other cells of it
+            placed[k] = tf.translation(rng.uniform(-3, 3), rng.uniform(-3, 3)) @ placed[k]
+        elif change == 3:   # gone for this composition
+            shown = [None if n == k else t for n, t in enumerate(placed)]
+            assert_same(compose(grids, shown, 0.05, cache=cache), compose(grids, shown, 0.05))
+            continue
+        assert_same(compose(grids, placed, 0.05, cache=cache), compose(grids, placed, 0.05))
+
+
+def assert_same(a, b):
+    assert a.origin == b.origin and np.array_equal(a.data, b.data)
 
 
 def test_known_pose_places_cells_in_metres():
