@@ -35,6 +35,7 @@ MIN_PAIRS = 10            # correspondences a pair needs (one way) to take part 
                           # bridge two groups overlap little, and without them the groups' own walls decided
 FIT_PX = 1.0              # pixels: a wall this close to a wall of the other grid of its pair fits
 MAX_PARTNERS = 6          # grids each grid is refined against, those it shares most walls with
+CHUNK_POINTS = 50_000   # walls whose correspondences are found in one pass (_PairWalls): 18 MB at the peak
 MAX_MOVE_M = 0.2          # metres at a grid's corners: a larger move is no refinement (with 0.5, six early demo
                           # maps under load had a right placement moved 0.37 m off, in 1 of 3 runs of the rostest)
 
@@ -74,10 +75,11 @@ def _sample(p: PreparedGrid, rng: np.random.Generator) -> Tuple[np.ndarray, np.n
 
 
 class _PairWalls:
-    """The sampled walls of grid i of every pair (i, j), end to end, the pairs onto one grid j together: the
-    correspondences of all the pairs of an iteration in one pass of numpy operations. Pair by pair, nine tenths of
-    the relaxation was numpy's overhead per call (the generated radial36: 2,822 pairs' correspondences of up to
-    2,000 walls each, 2.0 s)."""
+    """The sampled walls of grid i of some pairs (i, j), end to end, the pairs onto one grid j together: their
+    correspondences in one pass of numpy operations, not a few dozen calls per pair (the final relaxation of the
+    generated radial36, 2,822 pairs' correspondences of up to 2,000 walls each: CPU 1.5-2.0 s pair by pair, 1.4-1.7 s
+    so; mall36 0.6-1.0 s, 0.5 s). A relaxation takes its pairs in chunks of CHUNK_POINTS walls (_chunks), one at a
+    time: all at once, their walls and temporaries took 200 MB at the peak (pair by pair 2 MB, in chunks 18 MB)."""
 
     def __init__(self, pairs: Sequence[Tuple[int, int]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]]):
         self.pairs = list(pairs)
@@ -145,9 +147,25 @@ def _coefficients(models: np.ndarray, of: np.ndarray) -> Tuple[np.ndarray, ...]:
     return tuple(models[:, row, col].take(of) for row in (0, 1) for col in (0, 1, 2))
 
 
-def _fits(walls: _PairWalls, prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray]) -> int:
+def _chunks(pairs: Sequence[Tuple[int, int]],
+            samples: Dict[int, Tuple[np.ndarray, np.ndarray]]) -> List[List[Tuple[int, int]]]:
+    """The pairs in chunks of about CHUNK_POINTS walls (a pair is never split), the pairs onto one grid together."""
+    out: List[List[Tuple[int, int]]] = []
+    size = 0
+    for ij in sorted(pairs, key=lambda ij: ij[1]):
+        if not out or size + len(samples[ij[0]][0]) > CHUNK_POINTS:
+            out.append([])
+            size = 0
+        out[-1].append(ij)
+        size += len(samples[ij[0]][0])
+    return out
+
+
+def _fits(chunks: List[List[Tuple[int, int]]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]],
+          prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray]) -> int:
     """Walls, over every pair, within FIT_PX of a wall of the other grid seen from the same side."""
-    return len(walls.correspondences(walls.models(prepared, placed), prepared, FIT_PX)[0])
+    return sum(len(w.correspondences(w.models(prepared, placed), prepared, FIT_PX)[0])
+               for w in (_PairWalls(c, samples) for c in chunks))
 
 
 def _normal_equations(pair: np.ndarray, p: np.ndarray, q: np.ndarray, n: np.ndarray, walls: _PairWalls,
@@ -170,11 +188,11 @@ def _normal_equations(pair: np.ndarray, p: np.ndarray, q: np.ndarray, n: np.ndar
     centres = np.array([[centre[i], centre[j]] for i, j in walls.pairs]).reshape(-1, 4)
     turn_i = (px - centres[:, 0].take(pair)) * ny - (py - centres[:, 1].take(pair)) * nx
     turn_j = (qx - centres[:, 2].take(pair)) * ny - (qy - centres[:, 3].take(pair)) * nx
-    wx, wy, wti = w * nx, w * ny, w * turn_i
-    # each pair's sums of the weighted products of (nx, ny, turn_i, turn_j), and with the residual
-    sums = np.array([np.bincount(pair, weights=v, minlength=len(walls.pairs)) for v in (
-        wx * nx, wx * ny, wy * ny, wx * turn_i, wy * turn_i, wti * turn_i, wx * turn_j, wy * turn_j,
-        w * turn_j * turn_j, wti * turn_j, wx * r, wy * r, wti * r, w * turn_j * r)]).T
+    wx, wy, wti, wtj = w * nx, w * ny, w * turn_i, w * turn_j
+    # each pair's sums of the weighted products of (nx, ny, turn_i, turn_j), and with the residual, one at a time
+    products = ((wx, nx), (wx, ny), (wy, ny), (wx, turn_i), (wy, turn_i), (wti, turn_i), (wx, turn_j), (wy, turn_j),
+                (wtj, turn_j), (wti, turn_j), (wx, r), (wy, r), (wti, r), (wtj, r))
+    sums = np.array([np.bincount(pair, weights=u * v, minlength=len(walls.pairs)) for u, v in products]).T
     for k in np.unique(pair):
         xx, xy, yy, xti, yti, titi, xtj, ytj, tjtj, titj, xr, yr, tir, tjr = sums[k]
         i, j = walls.pairs[k]
@@ -208,8 +226,8 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     column = {k: 3 * n for n, k in enumerate(moving)}
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first = True              # the first iteration: every pair, and the correspondences of each counted
-    fitted = _PairWalls(pairs, samples)   # every pair judges the result
-    walls = fitted            # the pairs refined on, as long as no more go idle
+    fitted = _chunks(pairs, samples)   # every pair judges the result
+    chunks = fitted           # the pairs refined on, as long as no more go idle
     before = 0                # walls fitting at the placements given, over the pairs fitted
     for radius in RADII:
         for _ in range(limits.iterations):
@@ -217,26 +235,29 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
             centre = {k: tf.apply(out[k] @ prepared[k].px_to_map, samples[k][0]).mean(axis=0) for k in samples}
             h = PRIOR * np.eye(3 * len(moving))
             g = np.zeros(3 * len(moving))
-            # one way per pair (i's walls onto j's, j's normals): the pair's other way adds little but the time
-            pair, p, q, n = walls.correspondences(walls.models(prepared, out), prepared, radius)
-            count = np.bincount(pair, minlength=len(walls.pairs))
-            if first:
-                # the walls fitting before (_fits) are those of these within FIT_PX: the same pairs, the same test
-                gap = q - p
-                before = int(np.count_nonzero(gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1] <= FIT_PX * FIT_PX))
-            few = count < MIN_PAIRS
+            counted: Dict[Tuple[int, int], int] = {}
+            for walls in (_PairWalls(c, samples) for c in chunks):   # one chunk's walls at a time
+                # one way per pair (i's walls onto j's, j's normals): the pair's other way adds little but the time
+                pair, p, q, n = walls.correspondences(walls.models(prepared, out), prepared, radius)
+                count = np.bincount(pair, minlength=len(walls.pairs))
+                counted.update(zip(walls.pairs, count.tolist()))
+                if first:
+                    # the walls fitting before (_fits) are those of these within FIT_PX: the same pairs, the same test
+                    gap = q - p
+                    before += int(np.count_nonzero(gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1] <= FIT_PX * FIT_PX))
+                use = np.flatnonzero(count.take(pair) >= MIN_PAIRS)
+                if use.size:
+                    _normal_equations(pair.take(use), p.take(use, axis=0), q.take(use, axis=0), n.take(use, axis=0),
+                                      walls, prepared, out, centre, column, h, g, radius)
+            refined = [ij for ij in pairs if ij in counted]   # in the order of `pairs`
             if radius == RADII[0]:
-                idle.update(ij for ij, lacking in zip(walls.pairs, few) if lacking)
-            use = np.flatnonzero(~few.take(pair))
-            if use.size:
-                _normal_equations(pair.take(use), p.take(use, axis=0), q.take(use, axis=0), n.take(use, axis=0),
-                                  walls, prepared, out, centre, column, h, g, radius)
-            active = [ij for ij in walls.pairs if ij not in idle]
+                idle.update(ij for ij in refined if counted[ij] < MIN_PAIRS)
+            active = [ij for ij in refined if ij not in idle]
             if first:
                 # from here on each grid is refined against the few grids it shares most walls with: a fleet's
                 # large maps all overlap (30 robots of a hospital: 432 pairs), and the others add time, not accuracy
                 first = False
-                found = {ij: c for ij, c, lacking in zip(walls.pairs, count, few) if not lacking}
+                found = {ij: counted[ij] for ij in refined if counted[ij] >= MIN_PAIRS}
                 ranked = sorted(found, key=lambda ij: -found[ij])
                 kept: Dict[int, int] = {}
                 strong = set()
@@ -245,8 +266,8 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                         strong.add((i, j))
                         kept[i], kept[j] = kept.get(i, 0) + 1, kept.get(j, 0) + 1
                 active = [ij for ij in active if ij in strong]
-            if len(active) < len(walls.pairs):
-                walls = _PairWalls(active, samples)
+            if len(active) < len(refined):
+                chunks = _chunks(active, samples)
             step = -np.linalg.solve(h, g)
             for k, c in column.items():
                 dx, dy, dt = step[c:c + 3]
@@ -256,10 +277,10 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break
     moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
-    after = _fits(fitted, prepared, out)
+    after = _fits(fitted, samples, prepared, out)
     if moved > limits.max_move_m or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)
         return None
     log.debug('relaxed %d placements on %d of %d pairs: walls fitting %d -> %d, moved up to %.3f m', len(moving),
-              len(walls.pairs), len(fitted.pairs), before, after, moved)
+              sum(map(len, chunks)), len(pairs), before, after, moved)
     return out
