@@ -179,10 +179,9 @@ def _compose(grids, transforms, resolution, frame_id, left_out, max_cells, withi
     canvas = np.full((r1 - r0, c1 - c0), UNKNOWN, np.int8)
     merged_to_canvas = tf.translation(-c0, -r0) @ tf.scaling(1.0 / resolution) @ tf.translation(-lo[0], -lo[1])
     for _, g, data, crop_to_merged in parts:
-        if cache is None:
-            warp_into(canvas, data, merged_to_canvas @ crop_to_merged)
-            continue
-        patch = cache.patch(g, data, merged_to_canvas @ crop_to_merged, canvas.shape)
+        to_canvas = merged_to_canvas @ crop_to_merged
+        patch = cache.patch(g, data, to_canvas, canvas.shape) if cache is not None else \
+            warped_patch(data, to_canvas, canvas.shape)
         if patch is not None:
             _combine(canvas, patch)
     return Grid(canvas, resolution, (float(lo[0]) + c0 * resolution, float(lo[1]) + r0 * resolution, 0.0), frame_id)
