@@ -2,6 +2,7 @@
 legacy cell semantics, heterogeneous resolutions, no-overlap pairs, rotated chains, and the merge_maps CLI."""
 import json
 import math
+import pickle
 import re
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import pytest
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.cli import main as merge_maps
 from multirobot_map_merge.compose import PatchCache, compose
+from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.known_poses import InitPose
@@ -193,6 +195,22 @@ def test_unchanged_grids_are_not_recomputed(shared_dir):
     p.feed([g.copy() for g in grids])
     p.estimate()
     assert p.cache.misses == misses and p.cache.hits >= len(grids)
+
+
+def test_a_grid_prepared_for_later_computes_its_wall_fields_at_first_use_as_at_once(shared_dir):
+    """prepare(lazy=True) (the estimation's FeatureCache: a map whose placement stands on tracking's verdict is not
+    matched) leaves the wall fields for later; read, they are those prepare computes at once, also in a copy sent to
+    a worker process before they were computed."""
+    grids, _ = scenario(shared_dir, 'pair_large_depot_1')
+    names = ('walls', 'wall_distance', 'nearest_wall', 'free_side', 'wall_normals', 'known_depth')
+    at_once = prepare(grids[0], 0.05, None)
+    later = prepare(grids[0], 0.05, None, lazy=True)
+    sent = pickle.loads(pickle.dumps(later))
+    assert later._fields is None and sent._fields is None
+    for p in (later, sent):
+        for name in names:
+            assert np.array_equal(getattr(p, name), getattr(at_once, name)), name
+    assert later._fields is not None
 
 
 def test_binary_descriptors_padded_to_whole_words_match_as_before(shared_dir):

@@ -303,8 +303,9 @@ class ParallelMatcher:
 
     def _on_processes(self, executor: ProcessPoolExecutor, calls: Sequence[MatchCall]) -> List[PairMatch]:
         grids = {id(g): g for c in calls for g in (c.pi, c.pj)}
-        # detection left for later (features.prepare(lazy=True)) is done here, once, not in each worker
-        list(self.threads.map(lambda g: g.describe(), [g for g in grids.values() if g.keypoints is None]))
+        # detection and wall fields left for later (features.prepare(lazy=True)) are done here, once, not in each
+        # worker
+        list(self.threads.map(lambda g: g.describe().wall_fields(), grids.values()))
         paths = dict(zip(grids, self.threads.map(self._path, grids.values())))
         # the largest first: the batch ends on short matches, not on a long one alone on the pool
         order = sorted(range(len(calls)), key=lambda n: -len(calls[n].pi.walls))
