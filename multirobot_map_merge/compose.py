@@ -64,34 +64,33 @@ class PatchCache:
     final maps: 21 ms, warpAffine 59 % of it). Holds the grids of the last composition only."""
 
     def __init__(self) -> None:
-        self._known: Dict[int, Tuple[Grid, Optional[Tuple[int, int, int, int]]]] = {}   # id -> (grid, known box)
-        self._patches: Dict[int, Tuple[Grid, bytes, Optional[Patch]]] = {}   # id -> (grid, where it lands, patch)
+        # id of a grid -> [the grid, its known box, where its patch landed, the patch]
+        self._kept: Dict[int, list] = {}
         self._used: set = set()
+
+    def _entry(self, grid: Grid) -> list:
+        self._used.add(id(grid))
+        kept = self._kept.get(id(grid))
+        if kept is None or kept[0] is not grid:
+            kept = self._kept[id(grid)] = [grid, crop_to_known(grid.data, margin=0), None, None]
+        return kept
 
     def known_box(self, grid: Grid) -> Optional[Tuple[int, int, int, int]]:
         """crop_to_known(grid.data), computed once per grid."""
-        self._used.add(id(grid))
-        kept = self._known.get(id(grid))
-        if kept is None or kept[0] is not grid:
-            kept = (grid, crop_to_known(grid.data, margin=0))
-            self._known[id(grid)] = kept
-        return kept[1]
+        return self._entry(grid)[1]
 
     def patch(self, grid: Grid, src: np.ndarray, src_to_canvas: np.ndarray,
               canvas_shape: Tuple[int, int]) -> Optional[Patch]:
         """warped_patch of `src` (the grid's known part), again only when it lands elsewhere."""
+        kept = self._entry(grid)
         where = np.asarray(src_to_canvas, float).tobytes() + repr((src.shape, canvas_shape)).encode()
-        kept = self._patches.get(id(grid))
-        if kept is None or kept[0] is not grid or kept[1] != where:
-            kept = (grid, where, warped_patch(src, src_to_canvas, canvas_shape))
-            self._patches[id(grid)] = kept
-        return kept[2]
+        if kept[2] != where:
+            kept[2], kept[3] = where, warped_patch(src, src_to_canvas, canvas_shape)
+        return kept[3]
 
     def end_composition(self) -> None:
         """Forget the grids the composition that ends did not use (robots gone, maps replaced)."""
-        for store in (self._known, self._patches):
-            for key in [key for key in store if key not in self._used]:
-                del store[key]
+        self._kept = {key: kept for key, kept in self._kept.items() if key in self._used}
         self._used = set()
 
 

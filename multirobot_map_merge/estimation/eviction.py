@@ -65,12 +65,13 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
                          voters: Optional[Dict[int, list]] = None) -> List[int]:
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
-    that match's other places (PairMatch.other_places_m) where it does, agrees with at
-    least MIN_AGREEING members and contradicts this one alone. Every member so singled out is returned, the most
-    singled out first: one map's word is enough although that map can be the wrong one, since a member taken out is
-    searched onto the final merge and joins again where it is accepted (Grower.search_left_out(readmit=True)); with
-    two maps needed, the broken map_00 of generated hospital36, singled out by one, kept right maps out. With `seen` (grid -> the members its refused match was made against), a map votes only against a member
-    its match saw; `voters`, if given, is filled with member -> [(grid, the place it voted from)]."""
+    that match's other places (PairMatch.other_places_m) where it does, agrees with at least MIN_AGREEING members
+    and contradicts this one alone. Every member so singled out is returned, the most singled out first: one map's
+    word is enough although that map can be the wrong one, since a member taken out is searched onto the final merge
+    and joins again where it is accepted (Grower.search_left_out(readmit=True)); with two maps needed, the broken
+    map_00 of generated hospital36, singled out by one, kept right maps out. With `seen` (grid -> the members its
+    refused match was made against), a map votes only against a member its match saw; `voters`, if given, is filled
+    with member -> [(grid, the place it voted from)]."""
     votes: Counter = Counter()
     if len(members) <= MIN_AGREEING:
         return []

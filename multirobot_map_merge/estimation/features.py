@@ -60,6 +60,7 @@ class WallFields(NamedTuple):
 
 
 def wall_fields(work: np.ndarray) -> WallFields:
+    """The wall fields of a working grid (occupied: >= 50)."""
     occupied = work >= 50
     wall_rows, wall_cols = np.nonzero(occupied)
     walls = np.column_stack([wall_cols, wall_rows]).astype(np.float64)

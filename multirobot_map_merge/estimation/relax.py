@@ -101,7 +101,7 @@ class _PairWalls:
     def correspondences(self, models: np.ndarray, prepared: Sequence[Optional[PreparedGrid]], radius: float):
         """With models[n] placing the pixels of pair n's grid i into the pixels of its grid j: each wall of i paired
         with j's nearest wall seen from the same side within `radius`, as (pair index, i's wall, j's wall, j's unit
-        normal there), pixels of j; the pairs' correspondences are contiguous."""
+        normal there), pixels of j."""
         a, b, c, d, e, f = _coefficients(models, self.pair_of)
         x, y = self.points[:, 0], self.points[:, 1]
         moved = np.column_stack([a * x + b * y + c, d * x + e * y + f])
