@@ -675,7 +675,7 @@ def test_opposite_angles_correlated_from_one_turned_image_score_as_if_each_was_t
     assert sorted(a for unit in units for a in unit if a is not None) == sorted(angles)
 
     def best(units, keep):
-        found = search._best_peaks(ci, against, shape, diag, units, 2, keep, None)
+        found, _ = search._best_peaks(ci, against, shape, diag, units, 2, keep, None)
         return sorted(found, key=lambda st: -st[0])[:keep]
 
     # every angle is correlated (its best peak kept when nothing prunes it) ...
@@ -686,6 +686,60 @@ def test_opposite_angles_correlated_from_one_turned_image_score_as_if_each_was_t
     assert len(alone) == 8
     for (score_p, t_p, angle_p), (score_a, t_a, angle_a) in zip(paired, alone):
         assert abs(score_p - score_a) < 1e-3 * abs(score_a) and np.allclose(t_p, t_a) and angle_p == angle_a
+
+
+def test_the_search_counts_a_place_seen_at_neighbouring_angles_once():
+    """search.Places: a peak at a neighbouring angle a pixel away is the same place, which keeps its best peak; a new
+    place enters the best `keep` by its score and pushes the last one out."""
+    from multirobot_map_merge.estimation import search
+    places = search.Places(2, search.CoarseGrid(np.zeros((10, 20), np.float32), np.zeros((10, 20), np.float32), 4,
+                                                math.nan, 0.0))
+
+    def peak(x: float, y: float, degrees: float):
+        """A coarse transform putting the grid's centre (9.5, 4.5) at (x, y), turned by `degrees`; its angle."""
+        a = math.radians(degrees)
+        t = tf.rigid(0.0, 0.0, a)
+        t[:2, 2] = np.array([x, y]) - t[:2, :2] @ np.array([9.5, 4.5])
+        return t, a
+
+    assert places.add(9.0, *peak(50, 50, 0))
+    assert places.add(10.0, *peak(51, 50, 3.0))                 # the same place at the next angle, better
+    assert not places.add(8.0, *peak(51, 51, 1.0))              # and worse
+    assert places.add(5.0, *peak(80, 50, 0))                    # another place
+    assert places.add(7.0, *peak(20, 20, 90))                   # a better one: the place of 5 leaves
+    assert places.floor == 7.0 and not places.add(6.0, *peak(100, 100, 0))
+    assert [score for score, _, _ in places.best()] == [10.0, 7.0]
+    assert math.isclose(places.best()[0][2], math.radians(3.0))
+
+
+def test_the_search_refines_distinct_places_so_that_the_truth_behind_repeated_aliases_is_among_them(repo_root):
+    """test/data/office_alias: a map of a generated office (rooms every 8.5 m) and the union of 26 maps it was searched
+    onto at the end of an estimation (bench_merge.py --generated office36). The best peaks of the search are aliases
+    8.5 and 17 m along the corridor and half a turn away, each at two or three neighbouring angles, and the truth
+    ranked 11th of them while the search refined 8. As places (search.Places: a place's peaks at neighbouring angles
+    count once), the truth is among the places refined, and the search places the map there (search_left_out's
+    searches, growth.py)."""
+    from multirobot_map_merge.estimation import search
+    from multirobot_map_merge.estimation.pair import match_pair
+    folder = repo_root / 'test' / 'data' / 'office_alias'
+    truth = json.loads((folder / 'truth.json').read_text())
+    robot, union = (load_map(str(folder / m['file'])) for m in truth['maps'])
+    true_m = tf.inverse(tf.rigid(*truth['maps'][1]['pose'])) @ tf.rigid(*truth['maps'][0]['pose'])
+    s = EstimationSettings()
+    pr, pu = prepare(robot, 0.05, s.feature), prepare(union, 0.05, s.feature)
+
+    def near_truth(distinct_places: bool) -> bool:
+        models = search.correlate_candidates(pr, pu, s.search_factor, s.search_sweep_degrees, keep=s.search_keep,
+                                             penalty=s.search_penalty, free_reward=s.search_free_reward,
+                                             distinct_places=distinct_places)
+        offs = [_corner_error(robot, pu.px_to_map @ t @ tf.inverse(pr.px_to_map), true_m) for t in models]
+        return any(rot < 3.0 and cells < 20.0 for rot, cells in offs)   # ICP reaches the truth from there
+    assert not near_truth(False)
+    assert near_truth(True)
+    m = match_pair(0, 1, pr, pu, s, onto_union=True, descriptors=False, distinct_places=True)
+    assert m.accepted, m.reason
+    rot, cells = _corner_error(robot, m.transform_m, true_m)
+    assert rot < 1.0 and cells < 3.0, (rot, cells)
 
 
 def test_the_candidate_screen_counts_the_walls_on_a_small_common_area_of_a_large_map():

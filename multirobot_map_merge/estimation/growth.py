@@ -146,8 +146,8 @@ class Grower:
         self.matcher = matcher if matcher is not None else ParallelMatcher(settings, pool)
         self.neighbours = self.matcher.neighbours
         self.pair_evidence = PairEvidence(prepared, self.matcher)   # stronger.py
-        # search_left_out's: where its last search placed each grid (None: nowhere), the members taken out and the
-        # members' footprints as of its last call
+        # search_left_out's: where its last search placed each grid (None: nowhere, or on less than min_overlap_m2),
+        # the members taken out and the members' footprints as of its last call
         self.left_out_boxes: Dict[int, Optional[Box]] = {}
         self.left_out_accepted: set = set()          # those it placed by the rules of a pair, short of joining
         self.left_out_matches: Dict[int, PairMatch] = {}   # and how
@@ -597,7 +597,9 @@ class Grower:
             # searched onto a group that then merged with another and grew by a fifth, agreed 0.85 there and 1.000
             # on the final merge)
             box = self.left_out_boxes.get(k, False)
+            # a search that found no place at all (None) could have been kept out by any member that left
             saw_gone = any(members & gone for members in found) \
+                or (box is None and bool(gone)) \
                 or (box is not False and any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone))
             if box is not False and not (changed and k in self.left_out_accepted) and not saw_gone:
                 # searched at the end already and refused, and no member it saw has left since: the same verdict
@@ -625,8 +627,9 @@ class Grower:
         onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the
         growth's are: at the end of an estimation afresh they vote on the members (evict_contradicted, estimator.py).
         Called again, it searches a grid searched before only where the verdict can have changed: its placement
-        passed the pair rules and the members have changed since, or a member that its matches saw or its last
-        placement overlaps has left.
+        passed the pair rules and the members have changed since, or a member has left that its matches saw or its
+        last placement overlaps, or any member has left and its last search found no place (nothing on
+        min_overlap_m2). The searches refine the search's best distinct places too (match_pair's distinct_places).
 
         With `readmit`, it searches the members taken out instead (evict_contradicted), once the maps left out have
         had their rounds: a member one map singled out can be right and that map wrong (the generated radial hall: a
@@ -644,8 +647,10 @@ class Grower:
         for _ in range(LEFT_OUT_ROUNDS):
             members = frozenset(group.members)
             started = time.perf_counter()
+            # distinct places: these maps' descriptors found an alias, which can crowd the search's candidates too
             matches = self.matcher.match_all([MatchCall(k, group.seed, self.prepared[k], union,
-                                                        dict(onto_union=True, descriptors=False))
+                                                        dict(onto_union=True, descriptors=False,
+                                                             distinct_places=True))
                                               for k in todo]) + placed
             self.search_seconds += time.perf_counter() - started
             joining = []
@@ -665,7 +670,7 @@ class Grower:
             joined += len(joining)
             for m in matches:
                 self.left_out_boxes[m.i] = footprint(self.grids[m.i], m.transform_m) \
-                    if m.transform_m is not None else None
+                    if m.best is not None and m.best.overlap_m2 >= self.s.min_overlap_m2 else None
                 if m.accepted:
                     self.left_out_accepted.add(m.i)
                     self.left_out_matches[m.i] = m

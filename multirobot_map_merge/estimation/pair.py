@@ -176,7 +176,7 @@ def other_places(best: Placement, others: List[Placement], pi: PreparedGrid, s: 
 
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
                search: bool = True, onto_union: bool = False, descriptors: bool = True,
-               between_groups: bool = False, search_spent: bool = False,
+               between_groups: bool = False, search_spent: bool = False, distinct_places: bool = False,
                neighbours: Optional[NeighbourCache] = None) -> PairMatch:
     """Match grids i and j; the result's transform_m maps metric points of map i into map j.
 
@@ -194,6 +194,10 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     postponed (SEARCH_POSTPONED), not judged on the descriptors' candidates alone: the search's candidates can
     outrank them or make them ambiguous, so a match accepted without them could be one that the same maps refuse,
     or place elsewhere, when there is time to search.
+
+    With `distinct_places`, the search refines after its best peaks the best peak of each of its best places that
+    those miss (search.Places): for a map whose descriptors found an alias in a repetitive building, where the alias
+    scores high at several angles and crowds the truth out of the best peaks.
 
     `neighbours` keeps descriptor distances for the matches of one estimation (neighbours.py).
     """
@@ -243,7 +247,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # not when the overlap was found and the maps contradict there (a broken map): a search finds the same
         candidates += refine_all(correlate_candidates(pi, pj, s.search_factor, s.search_sweep_degrees,
                                                       keep=s.search_keep, penalty=s.search_penalty,
-                                                      free_reward=s.search_free_reward, threads=s.threads))
+                                                      free_reward=s.search_free_reward, threads=s.threads,
+                                                      distinct_places=distinct_places))
         best = max(candidates, key=rank, default=None)
         searched = True
     if best is None:

@@ -28,6 +28,8 @@ FREE_REWARD = 0.3
 SCREEN_ANGLES = 8        # angles of the coarser screen's best peaks searched at the search's factor
 SCREEN_COARSER = 1.5     # the screen's factor / the search's factor (see correlate_candidates)
 SCREEN_MIN_PIXELS = 32   # the screen needs both grids this many pixels across at its factor
+SAME_PLACE_PX = 2.0      # peaks at neighbouring angles whose grid centres lie this close (coarse pixels) ...
+SAME_PLACE_DEGREES = 3.5  # ... and whose angles differ by this little (a sweep step and a bit) are one place
 
 
 @dataclass
@@ -117,9 +119,10 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
                          free_reward: float = FREE_REWARD,
                          wanted: Optional[Callable[[np.ndarray], bool]] = None, threads: int = 1,
-                         screen_angles: int = SCREEN_ANGLES) -> List[np.ndarray]:
+                         screen_angles: int = SCREEN_ANGLES, distinct_places: bool = False) -> List[np.ndarray]:
     """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
-    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle.
+    accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle. With
+    `distinct_places`, after them the best peak of each of the `keep` best places that they miss (Places).
 
     Coarse to fine: every angle is correlated at SCREEN_COARSER times the factor first (less than half the
     pixels), and only the `screen_angles` angles of its best peaks again at the factor (0: every angle at the
@@ -136,15 +139,17 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
                               free_reward, None, threads, None)
         angles = list(dict.fromkeys(angle for _, _, angle in screened))[:screen_angles]
     found = _correlate(pi, pj, factor, sweep_degrees, peaks_per_angle, keep, penalty, free_reward, wanted, threads,
-                       angles)
+                       angles, distinct_places)
     return [t for _, t, _ in found]
 
 
 def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: float, peaks_per_angle: int,
                keep: int, penalty: float, free_reward: float, wanted: Optional[Callable[[np.ndarray], bool]],
-               threads: int, angles: Optional[List[float]]) -> List[Tuple[float, np.ndarray, float]]:
+               threads: int, angles: Optional[List[float]],
+               distinct_places: bool = False) -> List[Tuple[float, np.ndarray, float]]:
     """(score, transform i -> j between working pixels, angle) of the `keep` best peaks at `factor`, over the
-    given angles (None: rotation_candidates)."""
+    given angles (None: rotation_candidates), best first; with `distinct_places`, then the best peaks of the `keep`
+    best places that those miss, best first."""
     ci, cj = coarse(pi, factor), coarse(pj, factor)
     hi, wi = ci.walls.shape
     hj, wj = cj.walls.shape
@@ -163,15 +168,70 @@ def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: f
 
     def best_of(some: List[Tuple[float, Optional[float]]]) -> List[Tuple[float, np.ndarray, float]]:
         return _best_peaks(ci, against, shape, diag, some, peaks_per_angle, keep,
-                           None if wanted is None else (lambda t: wanted(k @ t @ k_inv)))
+                           None if wanted is None else (lambda t: wanted(k @ t @ k_inv)), distinct_places)
 
     if threads > 1 and len(units) > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            found = [f for part in pool.map(best_of, [units[n::threads] for n in range(threads)]) for f in part]
+            parts = list(pool.map(best_of, [units[n::threads] for n in range(threads)]))
     else:
-        found = best_of(units)
-    found.sort(key=lambda st: st[0], reverse=True)
-    return [(score, k @ t @ k_inv, angle) for score, t, angle in found[:keep]]
+        parts = [best_of(units)]
+    found = sorted((f for part, _ in parts for f in part), key=lambda st: st[0], reverse=True)[:keep]
+    if distinct_places:
+        places = Places(keep, ci)
+        for _, best in parts:
+            for peak in best:
+                places.add(*peak)
+        found += [p for p in places.best() if not any(p[1] is t for _, t, _ in found)]
+    return [(score, k @ t @ k_inv, angle) for score, t, angle in found]
+
+
+def same_place(a: Sequence[float], b: Sequence[float]) -> bool:
+    """Whether two peaks, each (x, y of grid i's centre on grid j in coarse pixels, angle), are one place seen at
+    two neighbouring angles."""
+    turn = abs((a[2] - b[2] + math.pi) % (2 * math.pi) - math.pi)
+    return turn <= math.radians(SAME_PLACE_DEGREES) and math.hypot(a[0] - b[0], a[1] - b[1]) <= SAME_PLACE_PX
+
+
+class Places:
+    """The best `keep` distinct places among the peaks added, each by its best peak.
+
+    One place scores high at several neighbouring angles, and the best `keep` peaks are often a few places, each
+    several times: a map of a generated office (rooms every 8.5 m) had its true place ranked 11th, behind aliases
+    at 8.5 and 17 m, each at two or three angles, and the search kept 8. Those peaks stay the search's first
+    candidates (ICP from one of them can stop short of the minimum that another start of that place reaches); the
+    places they miss come after them."""
+
+    def __init__(self, keep: int, ci: CoarseGrid):
+        hi, wi = ci.walls.shape
+        self.keep, self.centre = keep, ((wi - 1) / 2.0, (hi - 1) / 2.0)
+        self.items: List[list] = []   # [score, x, y, angle of its best peak, that peak], best first
+
+    @property
+    def floor(self) -> float:
+        """The score a peak must beat to make a new place among the best `keep`."""
+        return self.items[-1][0] if len(self.items) >= self.keep else -math.inf
+
+    def add(self, score: float, t: np.ndarray, angle: float) -> bool:
+        """Add a peak (coarse transform t of grid i onto grid j, at `angle`); whether it is now a place's best."""
+        cx, cy = self.centre
+        where = (t[0, 0] * cx + t[0, 1] * cy + t[0, 2], t[1, 0] * cx + t[1, 1] * cy + t[1, 2], angle)
+        item = next((it for it in self.items if same_place(it[1:4], where)), None)
+        if item is None:
+            if score <= self.floor:
+                return False
+            item = [score, *where, (score, t, angle)]
+            self.items.append(item)
+        elif score > item[0]:
+            item[:] = [score, *where, (score, t, angle)]
+        else:
+            return False
+        self.items.sort(key=lambda it: -it[0])
+        del self.items[self.keep:]
+        return any(it is item for it in self.items)
+
+    def best(self) -> List[Tuple[float, np.ndarray, float]]:
+        """The best peak of each place, best first."""
+        return [it[4] for it in self.items]
 
 
 def opposite_pairs(angles: Sequence[float]) -> List[Tuple[float, Optional[float]]]:
@@ -198,9 +258,11 @@ def opposite_pairs(angles: Sequence[float]) -> List[Tuple[float, Optional[float]
 
 def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: Tuple[int, int], diag: int,
                 units: Sequence[Tuple[float, Optional[float]]], peaks_per_angle: int, keep: int,
-                wanted: Optional[Callable[[np.ndarray], bool]]) -> List[Tuple[float, np.ndarray, float]]:
+                wanted: Optional[Callable[[np.ndarray], bool]], distinct_places: bool = False
+                ) -> Tuple[List[Tuple[float, np.ndarray, float]], List[Tuple[float, np.ndarray, float]]]:
     """(score, coarse transform i -> j, angle) of the best peaks over the angles of `units` (opposite_pairs):
-    `peaks_per_angle` at most per angle, and all that can rank among the best `keep`.
+    `peaks_per_angle` at most per angle, and all that can rank among the best `keep`; and with `distinct_places`
+    the best peaks of the best `keep` places among them (Places; else none).
 
     Grid i turned half a turn further is the turned image mirrored through the canvas point (diag/2, diag/2) (the
     same source pixel lands there, but for a pixel here and there where nearest-neighbour rounding ties): its
@@ -213,6 +275,7 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
     canvas = np.zeros(shape, np.float32)
     found: List[Tuple[float, np.ndarray, float]] = []
     floor = -math.inf   # the keep-th best score found so far
+    places = Places(keep, ci) if distinct_places else None
 
     def placement(angle: float) -> np.ndarray:
         # turn about the centre into the top-left corner of a zero canvas of the DFT's size
@@ -223,16 +286,19 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
 
     def take(score: np.ndarray, m: np.ndarray, angle: float) -> None:
         nonlocal floor
-        if len(found) >= keep and cv2.minMaxLoc(score)[1] <= floor:
-            return   # no peak of this angle can rank among the best `keep`
+        if len(found) >= keep and cv2.minMaxLoc(score)[1] <= floor \
+                and (places is None or cv2.minMaxLoc(score)[1] <= places.floor):
+            return   # no peak of this angle can rank among the best `keep` (nor make a place among the best)
         # local maxima, best first
         peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
         ys, xs = nonzero_2d(peaks)
         if ys.size == 0:
             return
         order = np.argsort(score[ys, xs])[::-1]
-        taken = 0
+        taken = placed = 0
         for y, x in zip(ys[order], xs[order]):
+            if places is not None and taken >= peaks_per_angle and score[y, x] <= places.floor:
+                break   # the rest can make no place among the best either
             # circular correlation: shifts past half the size are negative
             dy = y - shape[0] if y > shape[0] - diag else y
             dx = x - shape[1] if x > shape[1] - diag else x
@@ -241,9 +307,12 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
             t[:2, 2] += (dx, dy)
             if wanted is not None and not wanted(t):
                 continue
-            found.append((float(score[y, x]), t, angle))
-            taken += 1
-            if taken >= peaks_per_angle:
+            if taken < peaks_per_angle:
+                found.append((float(score[y, x]), t, angle))
+                taken += 1
+            if places is not None and placed < peaks_per_angle and places.add(float(score[y, x]), t, angle):
+                placed += 1
+            if taken >= peaks_per_angle and (places is None or placed >= peaks_per_angle):
                 break
         if taken and len(found) >= keep:
             floor = sorted((st[0] for st in found), reverse=True)[keep - 1]
@@ -265,4 +334,4 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
             spectrum += cv2.mulSpectrums(against[1], open_spectrum, 0)
             convolution = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
             take(np.roll(convolution, (-diag, -diag), axis=(0, 1)), placement(opposite), opposite)
-    return found
+    return found, places.best() if places is not None else []
