@@ -29,7 +29,9 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from typing import List, Optional, Sequence, Tuple
 
@@ -233,11 +235,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread as SIGINT raises KeyboardInterrupt: the estimation ends through its `with`
+    blocks, which remove its files (a merge_maps killed with the default handler left its folder in /dev/shm)."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format='%(levelname)s %(message)s')
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         return run(args)
+    except Terminated:
+        print('merge_maps: terminated', file=sys.stderr)
+        return 143   # as a shell reports SIGTERM
     except UsageError as e:
         print(f'merge_maps: error: {e}', file=sys.stderr)
         return 2
@@ -247,6 +263,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print('merge_maps: interrupted', file=sys.stderr)
         return 130   # as a shell reports SIGINT
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':

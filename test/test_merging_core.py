@@ -6,6 +6,7 @@ import pickle
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -291,6 +292,36 @@ def test_merge_maps_cli_bad_input_exits_2_with_one_line(repo_root, args, reason)
     assert proc.returncode == 2
     lines = [l for l in proc.stderr.splitlines() if 'error' in l]
     assert len(lines) == 1 and reason in lines[0]
+
+
+def test_merge_maps_terminated_removes_its_files_and_exits_143(repo_root, shared_dir):
+    """merge_maps sent SIGTERM while its worker processes match (the 30 maps of the large scenario) ends through its
+    estimation's `with` blocks: the folder of the grids it sent them (/dev/shm) is gone, and it exits 143 saying so
+    in one line. With Python's default handler it died at once and left the folder behind."""
+    import signal
+    import time
+    shm = Path('/dev/shm')
+    if not shm.is_dir():
+        pytest.skip('no /dev/shm')
+    maps = sorted(str(p) for p in (shared_dir / 'data' / 'dev' / 'large30_hospital_section').glob('map_*.yaml'))
+    before = set(shm.glob('map_merge_*'))
+    proc = subprocess.Popen([sys.executable, str(repo_root / 'nodes' / 'merge_maps'), *maps],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not set(shm.glob('map_merge_*')) - before and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if proc.poll() is not None or not set(shm.glob('map_merge_*')) - before:
+            pytest.skip('the estimation sent no files to /dev/shm (no room there, or it ended first)')
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143, err
+    assert err.splitlines()[-1] == 'merge_maps: terminated' and 'Traceback' not in err, err
+    assert not set(shm.glob('map_merge_*')) - before
 
 
 @pytest.mark.parametrize('name', ['pair_large_simple_rooms_1', 'pair_large_tb3_sandbox_1',
