@@ -35,7 +35,7 @@ MIN_PAIRS = 10            # correspondences a pair needs (one way) to take part 
                           # bridge two groups overlap little, and without them the groups' own walls decided
 FIT_PX = 1.0              # pixels: a wall this close to a wall of the other grid of its pair fits
 MAX_PARTNERS = 6          # grids each grid is refined against, those it shares most walls with
-CHUNK_POINTS = 50_000   # walls whose correspondences are found in one pass (_PairWalls): 18 MB at the peak
+CHUNK_POINTS = 50_000     # walls whose correspondences are found in one pass (_PairWalls): 18 MB at the peak
 MAX_MOVE_M = 0.2          # metres at a grid's corners: a larger move is no refinement (with 0.5, six early demo
                           # maps under load had a right placement moved 0.37 m off, in 1 of 3 runs of the rostest)
 

@@ -286,9 +286,10 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
 
     def take(score: np.ndarray, m: np.ndarray, angle: float) -> None:
         nonlocal floor
-        if len(found) >= keep and cv2.minMaxLoc(score)[1] <= floor \
-                and (places is None or cv2.minMaxLoc(score)[1] <= places.floor):
-            return   # no peak of this angle can rank among the best `keep` (nor make a place among the best)
+        if len(found) >= keep:
+            top = cv2.minMaxLoc(score)[1]
+            if top <= floor and (places is None or top <= places.floor):
+                return   # no peak of this angle can rank among the best `keep` (nor make a place among the best)
         # local maxima, best first
         peaks = (score == cv2.dilate(score, np.ones((5, 5), np.uint8))) & (score > 0)
         ys, xs = nonzero_2d(peaks)
