@@ -355,6 +355,39 @@ def test_a_grid_found_to_contradict_some_members_is_not_searched_against_their_g
     assert searched == [4]
 
 
+def test_a_match_that_found_a_contradicting_overlap_keeps_the_grid_from_the_search_in_later_estimations(repo_root):
+    """A live node's memory: a grid whose descriptor match found where it overlaps the union and contradicts it there
+    (a broken map) is not searched in the next estimation either, while neither has changed enough for that match
+    to be made again (a 30-robot reveal searched each broken map in the estimation after each such match: 50
+    searches, 27 now). A grid whose match found no overlap is searched."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    grids = grids + [grids[2], grids[2]]   # 3 and 4: stand-ins for grids the union does not place
+    s = EstimationSettings()
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    memory, names = EstimationMemory(), ['a', 'b', 'c', 'broken', 'other']
+    contradicting = Placement(np.eye(3), support=900, agreement=0.97, overlap_m2=30.0, deep_conflicts=40)
+    refusals = {3: PairMatch(3, 0, reason='deep conflicts', best=contradicting),
+                4: PairMatch(4, 0, reason='no rigid model')}
+    calls = []
+    with ThreadPoolExecutor(2) as pool:
+        for estimation in range(2):
+            grower = Grower(grids, prepared, 0.05, s, pool, 0, None, memory, names)
+            group = grower.group(0)
+            group.union.add(1, grids[1], prepared[1], tf.inverse(poses[0]) @ poses[1])
+            grower.match = lambda g, ks, search, n=estimation: [
+                calls.append((n, k, search)) or (PairMatch(k, g.seed, reason='none') if search else refusals[k])
+                for k in ks]
+            grower.grow(group, [3, 4])
+    # the first estimation matches both and searches only the grid without a found overlap, as the second does
+    assert calls == [(0, 3, False), (0, 4, False), (0, 4, True)], calls
+
+
 def test_a_pair_refusal_counts_as_a_found_overlap_only_by_the_rule_for_pairs(repo_root):
     """Final maps of a live demo run (demo_lost_robot) with the correlation search scored as in earlier versions:
     robot_2, searched against robot_1 alone, is refused with support and agreement (511, 0.68) that would count as a

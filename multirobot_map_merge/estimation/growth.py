@@ -221,7 +221,8 @@ class Grower:
                 for m in results:
                     if not m.accepted:
                         self.memory.tries.put((self.names[m.i], members),
-                                              (self.grids[m.i], known, m.i in self.contradicting))
+                                              (self.grids[m.i], known, m.i in self.contradicting,
+                                               overlap_found(m.best, self.s, len(group.members) > 1)))
                 if added:
                     continue
             if not search or not self._search(group, unplaced):
@@ -245,6 +246,10 @@ class Grower:
                 return True
             if last[2]:
                 self.contradicting.add(k)
+            if last[3]:
+                # it found where the grid overlaps the union and contradicts it: a search would find the same (_search);
+                # without this, a map broken by a SLAM failure was searched in the estimation after each such match
+                self.found.setdefault(k, []).append(frozenset(group.members))
             return False
         if tried == group.union.version:
             return False

@@ -80,9 +80,10 @@ class Store:
 
 class EstimationMemory:
     """checks: name -> the verdict of its last placement check that held (tracking.Verdict); keypoints: name ->
-    (grid, points in its map frame, descriptors); tries: (name, union member names) -> (grid, union known pixels) of
-    a failed match; searches: the same for failed correlation searches; latest: name -> the content key of its map
-    in the last estimation that tracked placements; settled_inputs: the (name, content key) pairs of the last
+    (grid, points in its map frame, descriptors); tries: (name, union member names) -> (grid, union known pixels,
+    whether it contradicted the union, whether it found where they overlap) of a failed match; searches: (name, seed
+    name) -> (grid, union known pixels, union member names) of a correlation search; latest: name -> the content key
+    of its map in the last estimation that tracked placements; settled_inputs: the (name, content key) pairs of the last
     estimation if its maps were those of the one before, else None; fresh_inputs: the pairs last estimated afresh
     (estimator.py); postponed_inputs: the pairs of the last estimation if its search budget left searches to a later
     one, else None (postponed_rounds: how many in a row); relaxed: name -> map of the placements tracking last
