@@ -193,7 +193,32 @@ def test_the_files_of_an_estimation_are_removed(repo_root):
         _same_matches(matcher.match_all(calls), calls, settings)
         folder = matcher._folder
         assert folder is not None and len(os.listdir(folder)) == len(grids)
+        assert os.path.basename(folder).startswith(f'{workers.FOLDER_PREFIX}{os.getpid()}_')
     assert not os.path.exists(folder)
+
+
+def test_the_folders_of_processes_that_have_gone_are_swept_once_untouched_for_a_while(tmp_path, monkeypatch):
+    """A process killed with its workers at once leaves its folder (in /dev/shm, memory): the next estimation that
+    writes files there removes it, once it has been untouched for STALE_S (a process of another PID namespace
+    sharing the folder looks gone too); a live process's folder, a recent one and other files stay."""
+    gone = subprocess.Popen(['true'])
+    gone.wait()
+    old = time.time() - 2 * workers.STALE_S
+    names = {'stale': f'map_merge_{gone.pid}_a', 'recent': f'map_merge_{gone.pid}_b',
+             'alive': f'map_merge_{os.getpid()}_c', 'other': f'map_merge_x{gone.pid}_d',
+             'file': f'map_merge_{gone.pid}_e'}
+    for key, name in names.items():
+        path = tmp_path / name
+        if key == 'file':
+            path.write_text('')
+        else:
+            path.mkdir()
+            (path / '1.pickle').write_bytes(b'')
+        if key != 'recent':
+            os.utime(path, (old, old))
+    monkeypatch.setattr(workers, '_swept', set())
+    workers._sweep_stale(str(tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items() if k != 'stale')
 
 
 def test_the_files_of_a_matcher_used_without_with_are_removed_once_it_is_collected(repo_root):

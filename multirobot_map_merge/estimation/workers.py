@@ -60,6 +60,8 @@ LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its
 FILES_KEPT_BYTES = 256 * 2 ** 20
 SHARED_FOLDER = '/dev/shm'
 SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to go there: those kept and a batch's
+FOLDER_PREFIX = 'map_merge_'   # an estimation's folder: map_merge_<pid of the estimating process>_<random>
+STALE_S = 600.0   # a folder of a process that has gone, untouched this long, is removed by the next estimation
 
 
 @dataclass
@@ -241,6 +243,39 @@ def _files_folder() -> Optional[str]:
     return None
 
 
+_swept: set = set()   # the folders this process has swept (once each)
+
+
+def _sweep_stale(folder: Optional[str]) -> None:
+    """Remove the estimation folders in `folder` (None: the temporary folder) of processes that have gone: a process
+    killed with its workers at once (SIGKILL to its process group, the OOM killer) leaves its files there, and
+    /dev/shm is memory. Only this user's, untouched for STALE_S: a process of another PID namespace that shares the
+    folder looks gone."""
+    folder = folder or tempfile.gettempdir()
+    if folder in _swept:
+        return
+    _swept.add(folder)
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        pid = entry.name[len(FOLDER_PREFIX):].split('_', 1)[0]
+        if not (entry.name.startswith(FOLDER_PREFIX) and pid.isdigit()):
+            continue
+        try:
+            stat = entry.stat(follow_symlinks=False)
+            if not entry.is_dir(follow_symlinks=False) or stat.st_uid != os.getuid() \
+                    or time.time() - stat.st_mtime < STALE_S:
+                continue
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            log.info('removing %s: the files of an estimation whose process has gone', entry.path)
+            shutil.rmtree(entry.path, ignore_errors=True)
+        except OSError:
+            pass   # alive (another user's), or gone meanwhile
+
+
 class ParallelMatcher:
     """One estimation's parallel matches: on `settings.threads` worker processes (settings.processes), else on the
     estimation's thread pool. A context manager: its files are removed at its end (or once it is collected, for one
@@ -331,7 +366,9 @@ class ParallelMatcher:
                 self._files.move_to_end(id(grid))
                 return sent[1]
             if self._folder is None:
-                self._folder = tempfile.mkdtemp(prefix='map_merge_', dir=_files_folder())
+                folder = _files_folder()
+                _sweep_stale(folder)
+                self._folder = tempfile.mkdtemp(prefix=f'{FOLDER_PREFIX}{os.getpid()}_', dir=folder)
                 self._remove_folder = weakref.finalize(self, shutil.rmtree, self._folder, ignore_errors=True)
             self._written += 1
             path = os.path.join(self._folder, f'{self._written}.pickle')
