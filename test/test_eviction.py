@@ -60,6 +60,25 @@ def test_a_map_left_out_agrees_with_the_members_but_the_broken_one():
     assert sorted(agreeing) == [1, 2] and contradicting == [0]
 
 
+def test_the_members_are_judged_again_from_the_verifications_kept_at_the_same_places(monkeypatch):
+    """The maps left out are judged again after each eviction, mostly at the same places against the same members:
+    with `verified`, a verification made at a place is not made again, and the verdict is the same."""
+    import multirobot_map_merge.estimation.eviction as eviction
+    grids, prepared, members, footprints, _ = scene()
+    s = EstimationSettings()
+    made = []
+    real = eviction.verify
+    monkeypatch.setattr(eviction, 'verify', lambda *a: made.append(a) or real(*a))
+    verified = {}
+    box = footprint(grids[3], np.eye(3))
+    first = judge_members(3, np.eye(3), members, footprints, box, prepared, s, verified=verified)
+    assert len(made) == 3 and len(verified) == 3
+    assert judge_members(3, np.eye(3), members, footprints, box, prepared, s, verified=verified) == first
+    assert len(made) == 3
+    judge_members(3, tf.rigid(0.05, 0.0, 0.0), members, footprints, box, prepared, s, verified=verified)
+    assert len(made) == 6   # another place: verified anew
+
+
 def test_the_member_maps_left_out_single_out_leaves_on_one_map_s_word():
     grids, prepared, members, footprints, refused = scene()
     s = EstimationSettings()

@@ -138,6 +138,7 @@ class Grower:
         self.failed_searches: set = set()
         self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
+        self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
         self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
@@ -415,7 +416,7 @@ class Grower:
             voters: Dict[int, list] = {}
             singled = contradicted_members(outside, onto, group.members, group.union.footprints,
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
-                                           (self.reference,), self.s, seen, voters)
+                                           (self.reference,), self.s, seen, voters, self.judged)
             if make_room:
                 singled = [j for j in singled if self._makes_room(group, j, voters[j])]
             if not singled:
@@ -532,7 +533,7 @@ class Grower:
                           for k, t in members[id(other)].items()}
                 found = contradicted_members(list(placed), placed, members[id(group)], group.union.footprints,
                                              lambda k, t: footprint(self.grids[k], t), self.prepared,
-                                             (self.reference,), self.s)
+                                             (self.reference,), self.s, verified=self.judged)
                 if found:
                     singled.append((group, found[0], other.seed))
                     del members[id(group)][found[0]]
@@ -664,7 +665,7 @@ class Grower:
                     continue
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
-                                                        self.s, strict=False)
+                                                        self.s, strict=False, verified=self.judged)
                 if len(agreeing) >= MIN_AGREEING and not contradicting:
                     joining.append(m)
             for m in joining:
