@@ -134,7 +134,9 @@ class UnionMap:
         else:
             order = sorted(self.members)
             union = compose([self.grids[k] for k in order], [self.members[k] for k in order], self.resolution)
-            self._prepared = prepare(union, self.resolution, None) if union is not None else None
+            # the wall fields when a match first reads them: a union is also prepared for its size alone (a live
+            # node's growth asks it of every estimation, whether or not a grid is matched onto it then)
+            self._prepared = prepare(union, self.resolution, None, lazy=True) if union is not None else None
             if self._prepared is not None:
                 (self._prepared.keypoints, self._prepared.descriptors,
                  self._prepared.descriptor_parts) = pooled_keypoints(
