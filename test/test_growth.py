@@ -252,7 +252,7 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
     """Tracking checks each placement against the maps near it, so small turns between neighbours can add up; once
     the maps stop changing, the kept placements are compared once with an estimate afresh from those final maps (in
     the estimation after the one that checks them on those maps), which replaces them when it moves one by more than
-    the noise (it places every map they did, same frame)."""
+    the noise (it places every map they did, same frame). The verdicts on the placements it did not move stand."""
     from multirobot_map_merge.estimation import estimator, tracking
     from multirobot_map_merge.estimation.memory import EstimationMemory
     from multirobot_map_merge.estimation.pair import PairMatch
@@ -263,12 +263,14 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
     real = estimator._estimate
     monkeypatch.setattr(estimator, '_estimate', lambda *args: runs.append(args[4] is None) or real(*args))
     # checks that confirm whatever they are given, as neighbour checks can confirm a chain that turns a little
-    monkeypatch.setattr(tracking, 'recheck', lambda k, grids, prepared, placed, *rest:
+    rechecked = []
+    monkeypatch.setattr(tracking, 'recheck', lambda k, grids, prepared, placed, *rest: rechecked.append(k) or
                         tracking.Check(k, placed[k], PairMatch(k, 0, accepted=True)))
     # nor are they refined together (relax.py would turn c back): the estimate afresh is what this is about
     monkeypatch.setattr(tracking, 'relax', lambda *args, **kwargs: None)
     previous = list(fresh.transforms)
     previous[2] = tf.rigid(0.0, 0.0, math.radians(1.0)) @ previous[2]   # map c kept 1 degree off
+    previous[1] = tf.rigid(0.02, 0.0, 0.0) @ previous[1]   # and map b 2 cm, within the noise
     kept = estimate(grids, s, preferred_reference=0, previous=previous, memory=memory, names=names)
     assert runs == [False] and kept.tracked == 2
     assert np.allclose(kept.transforms[2], previous[2])
@@ -284,10 +286,13 @@ def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps
         assert np.allclose(final.transforms[k], fresh.transforms[k], atol=1e-9), k
     rot, dist = _error(final.transforms[2], poses, 2, 0)
     assert rot < 0.5 and dist < 0.1
-    # only once for these maps
+    # only once for these maps; the verdict on map b, which the estimate afresh moved within the noise, stands for
+    # its new placement, and only map c is checked again
     runs.clear()
+    rechecked.clear()
     again = estimate(grids, s, preferred_reference=0, previous=final.transforms, memory=memory, names=names)
     assert runs == [False] and np.allclose(again.transforms[2], fresh.transforms[2])
+    assert rechecked == [2]
 
 
 def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
