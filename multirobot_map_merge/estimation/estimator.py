@@ -34,7 +34,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, relax
 from .settings import EstimationSettings
-from .tracking import track
+from .tracking import move_verdict, track
 from .union import known_corners
 from .workers import ParallelMatcher
 
@@ -268,9 +268,8 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     # else the next estimation checks every placement again (30 robots: 47 checks, 3 s, when the fresh estimate
     # placed a broken map more and moved the others by up to 0.04 m)
     for k, shift in shifts.items():
-        verdict = memory.checks.get(names[k])
-        if shift <= FRESH_MOVE_M and verdict is not None:
-            memory.checks.put(names[k], verdict._replace(transform=fresh.transforms[k]))
+        if shift <= FRESH_MOVE_M:
+            move_verdict(memory, names[k], fresh.transforms[k])
     fresh.seconds += result.seconds
     return fresh
 

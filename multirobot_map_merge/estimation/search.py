@@ -28,8 +28,8 @@ FREE_REWARD = 0.3
 SCREEN_ANGLES = 8        # angles of the coarser screen's best peaks searched at the search's factor
 SCREEN_COARSER = 1.5     # the screen's factor / the search's factor (see correlate_candidates)
 SCREEN_MIN_PIXELS = 32   # the screen needs both grids this many pixels across at its factor
-SAME_PLACE_PX = 2.0      # peaks at neighbouring angles whose grid centres lie this close (coarse pixels) ...
-SAME_PLACE_DEGREES = 3.5  # ... and whose angles differ by this little (a sweep step and a bit) are one place
+PLACE_PX = 2.0           # peaks at neighbouring angles whose grid centres lie this close (coarse pixels) ...
+PLACE_DEGREES = 3.5      # ... and whose angles differ by this little (a sweep step and a bit) are one place
 
 
 @dataclass
@@ -185,11 +185,11 @@ def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: f
     return [(score, k @ t @ k_inv, angle) for score, t, angle in found]
 
 
-def same_place(a: Sequence[float], b: Sequence[float]) -> bool:
+def _one_place(a: Sequence[float], b: Sequence[float]) -> bool:
     """Whether two peaks, each (x, y of grid i's centre on grid j in coarse pixels, angle), are one place seen at
-    two neighbouring angles."""
+    two neighbouring angles (coarser than verify.same_place, which compares two refined estimates)."""
     turn = abs((a[2] - b[2] + math.pi) % (2 * math.pi) - math.pi)
-    return turn <= math.radians(SAME_PLACE_DEGREES) and math.hypot(a[0] - b[0], a[1] - b[1]) <= SAME_PLACE_PX
+    return turn <= math.radians(PLACE_DEGREES) and math.hypot(a[0] - b[0], a[1] - b[1]) <= PLACE_PX
 
 
 class Places:
@@ -215,7 +215,7 @@ class Places:
         """Add a peak (coarse transform t of grid i onto grid j, at `angle`); whether it is now a place's best."""
         cx, cy = self.centre
         where = (t[0, 0] * cx + t[0, 1] * cy + t[0, 2], t[1, 0] * cx + t[1, 1] * cy + t[1, 2], angle)
-        item = next((it for it in self.items if same_place(it[1:4], where)), None)
+        item = next((it for it in self.items if _one_place(it[1:4], where)), None)
         if item is None:
             if score <= self.floor:
                 return False

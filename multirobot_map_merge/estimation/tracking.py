@@ -198,10 +198,15 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         elif k in relaxed and k != reference:
             # a verdict that stood holds for the placement refined with the others: the walls of every pair fit
             # better there (relax.py), and a verdict lost at each relaxation would make every check again
-            verdict = memory.checks.get(names[k])
-            if verdict is not None:
-                memory.checks.put(names[k], verdict._replace(transform=placed[k]))
+            move_verdict(memory, names[k], placed[k])
     return placed, list(checks.values())
+
+
+def move_verdict(memory: EstimationMemory, name: Hashable, transform: np.ndarray) -> None:
+    """Let the verdict on `name`'s placement, if any, stand for `transform`, a refinement of that placement."""
+    verdict = memory.checks.get(name)
+    if verdict is not None:
+        memory.checks.put(name, verdict._replace(transform=transform))
 
 
 def relax_placed(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
