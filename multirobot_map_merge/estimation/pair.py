@@ -20,10 +20,12 @@ from .. import transforms as tf
 from .features import PreparedGrid, nonzero_2d
 from .hypotheses import hypotheses, putative_matches, quick_agreement
 from .neighbours import NeighbourCache
+from .orientation import aligned
 from .polish import polish
+from .precision import covariance
 from .refine import icp
 from .search import correlate_candidates
-from .verify import (Placement, distinct, landing_box, overlap_found, pair_confidence, plausible, refusal,
+from .verify import (IMPRECISE, Placement, distinct, landing_box, overlap_found, pair_confidence, plausible, refusal,
                      same_place, verify, warp_into)
 
 if TYPE_CHECKING:
@@ -174,6 +176,18 @@ def other_places(best: Placement, others: List[Placement], pi: PreparedGrid, s: 
     return places
 
 
+def turned_to_directions(pi: PreparedGrid, pj: PreparedGrid, c: Placement, s: EstimationSettings,
+                         onto_union: bool) -> Optional[Placement]:
+    """Placement c, which the shared walls leave imprecise, turned about their centre so that both grids' wall
+    directions meet (orientation.py), if it then passes the rules; None otherwise."""
+    found = covariance(pi, pj, c.transform, s.verify_tolerance)
+    model = aligned(pi, pj, c.transform, found[1]) if found is not None else None
+    if model is None:
+        return None
+    turned = verify(pi, pj, model, s)
+    return turned if plausible(turned, s) and not refusal(turned, pi, pj, s, onto_union) else None
+
+
 def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSettings,
                search: bool = True, onto_union: bool = False, descriptors: bool = True,
                between_groups: bool = False, search_spent: bool = False, distinct_places: bool = False,
@@ -282,6 +296,11 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
                 starts.append(t)
         polished = verify(pi, pj, polish(pi, pj, starts, rng), s)
         candidates[0] = polished if plausible(polished, s) else candidates[0]
+    reason = refusal(candidates[0], pi, pj, s, onto_union)
+    if reason.startswith(IMPRECISE):
+        turned = turned_to_directions(pi, pj, candidates[0], s, onto_union)
+        if turned is not None:
+            candidates[0], reason = turned, ''
     best = candidates[0]
     result.best = best
     result.alternatives = candidates[1:]
@@ -295,7 +314,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
 
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and as_good(c, best, s)), None)
-    result.reason = refusal(best, pi, pj, s, onto_union)
+    result.reason = reason
     if not result.reason and rival is not None:
         result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')

@@ -62,14 +62,22 @@ def covariance(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray,
 
 
 def corner_error(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, tolerance: float,
-                 moving_only: bool = False) -> float:
+                 moving_only: bool = False, angle_bound: Optional[float] = None) -> float:
     """Expected error (pixels of j) at the farthest corner of either grid for the placement `model` (pixels i ->
     pixels j): INFLATION times the formal standard deviation. inf when too few walls agree to tell. With
-    `moving_only` (j is the union of a placed group, which does not move), at the corners of grid i only."""
+    `moving_only` (j is the union of a placed group, which does not move), at the corners of grid i only. With
+    `angle_bound` (radians: what another measure, orientation.py, bounds the angle to), the angle is that measure's
+    and the shared walls' translation is the one they give at that angle."""
     found = covariance(pi, pj, model, tolerance)
     if found is None:
         return math.inf
     cov, centre = found
+    cov = cov * INFLATION ** 2
+    if angle_bound is not None:
+        # the shift the walls allow once the angle is known (about their centre), and the other measure's angle
+        shift = cov[:2, :2] - np.outer(cov[:2, 2], cov[2, :2]) / cov[2, 2]
+        cov = np.zeros((3, 3))
+        cov[:2, :2], cov[2, 2] = shift, angle_bound ** 2
     hi, wi = pi.work.shape
     hj, wj = pj.work.shape
     corners = tf.apply(model, _box(wi, hi)) if moving_only else np.vstack([tf.apply(model, _box(wi, hi)), _box(wj, hj)])
@@ -78,7 +86,7 @@ def corner_error(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, toleranc
         # displacement of a point under a small turn dtheta about the centre and a shift (dx, dy)
         g = np.array([[1.0, 0.0, -y], [0.0, 1.0, x]])
         worst = max(worst, float(np.trace(g @ cov @ g.T)))
-    return INFLATION * math.sqrt(worst)
+    return math.sqrt(worst)
 
 
 def _box(w: int, h: int) -> np.ndarray:

@@ -13,6 +13,7 @@ than MAX_MOVE_M at a grid's corners means something else is wrong (tracking's ch
 from __future__ import annotations
 
 import logging
+import math
 from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
@@ -20,6 +21,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import PreparedGrid, opposed_xy
+from .orientation import MAX_TURN_DEGREES, orientation
 from .union import Box, known_corners, overlap_area
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.relax')
@@ -55,6 +57,11 @@ class Limits(NamedTuple):
 # left out; it turned back by under a tenth of a degree per iteration
 FINAL = Limits(max_move_m=0.5, iterations=10, max_partners=12)
 STILL_M, STILL_RAD = 0.002, 5e-5   # a step this small ends a level (a tenth of a degree is 1.7e-3 rad)
+DIRECTION_NOISE_M = 0.025  # a grid's wall direction off by its standard error weighs as a correspondence (one wall
+                           # pixel) off by this. The generated classic36: the directions of 12 maps turn their group
+                           # from 0.6 to 0.1 degrees off against the few walls it shares with the rest (0.03 with
+                           # 0.05, but then the direction of a small map, 0.1-0.17 degrees off, turned well-fitting
+                           # maps of a chain, the chain3 sample, by as much)
 PRIOR = 1.0               # weight (in correspondences) keeping a direction no wall constrains where it was
 
 
@@ -209,6 +216,52 @@ def _normal_equations(pair: np.ndarray, p: np.ndarray, q: np.ndarray, n: np.ndar
             h[cj:cj + 3, ci:ci + 3] += cross.T
 
 
+class _Directions:
+    """The grids' wall directions (orientation.py) as terms of the relaxation: each grid's direction, placed, meets the
+    building's (one more unknown, modulo 90 degrees), weighted by how precisely it is known. A group bridged to the
+    rest by a small common area is held there only loosely by the walls, which may turn it by most of a degree (the
+    generated classic36: 12 maps 0.84 degrees off); the directions of its maps, all together, turn it back. A grid
+    whose direction is off by more than orientation.MAX_TURN_DEGREES (a wing of another direction) takes no part."""
+
+    def __init__(self, placed: Dict[int, np.ndarray], reference: int, prepared: Sequence[Optional[PreparedGrid]],
+                 column: int):
+        self.of = {k: o for k in placed if prepared[k] is not None
+                   for o in [orientation(prepared[k])] if o is not None}
+        self.column = column
+        self.unknowns = 1 if len(self.of) >= 2 else 0
+        self.building = None
+        if self.unknowns:
+            first = reference if reference in self.of else min(self.of)
+            self.building = self._placed(first, placed[first], prepared)
+
+    def _placed(self, k: int, t: np.ndarray, prepared: Sequence[Optional[PreparedGrid]]) -> float:
+        m = t @ prepared[k].px_to_map
+        return self.of[k].angle + math.atan2(m[1, 0], m[0, 0])
+
+    def add(self, out: Dict[int, np.ndarray], prepared: Sequence[Optional[PreparedGrid]], column: Dict[int, int],
+            h: np.ndarray, g: np.ndarray) -> None:
+        if not self.unknowns:
+            return
+        d = self.column
+        for k in self.of:
+            r = (self._placed(k, out[k], prepared) - self.building + math.pi / 4) % (math.pi / 2) - math.pi / 4
+            if abs(r) > math.radians(MAX_TURN_DEGREES):
+                continue
+            w = (DIRECTION_NOISE_M / self.of[k].sigma) ** 2
+            h[d, d] += w
+            g[d] -= w * r
+            c = column.get(k)
+            if c is not None:
+                h[c + 2, c + 2] += w
+                h[c + 2, d] -= w
+                h[d, c + 2] -= w
+                g[c + 2] += w * r
+
+    def step(self, step: np.ndarray) -> None:
+        if self.unknowns:
+            self.building += float(step[self.column])
+
+
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box],
           min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = Limits()) -> Optional[Dict[int, np.ndarray]]:
@@ -224,6 +277,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     samples = {k: _sample(prepared[k], rng) for k in placed if prepared[k] is not None}
     idle: set = set()   # pairs with too few of i's walls near j's at the widest radius, none nearer later
     column = {k: 3 * n for n, k in enumerate(moving)}
+    directions = _Directions(placed, reference, prepared, len(column) * 3)
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first = True              # the first iteration: every pair, and the correspondences of each counted
     fitted = _chunks(pairs, samples)   # every pair judges the result
@@ -233,8 +287,9 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
         for _ in range(limits.iterations):
             # the walls' centre of each grid in the merged frame: turns about it keep the system well conditioned
             centre = {k: tf.apply(out[k] @ prepared[k].px_to_map, samples[k][0]).mean(axis=0) for k in samples}
-            h = PRIOR * np.eye(3 * len(moving))
-            g = np.zeros(3 * len(moving))
+            h = PRIOR * np.eye(3 * len(moving) + directions.unknowns)
+            g = np.zeros(3 * len(moving) + directions.unknowns)
+            directions.add(out, prepared, column, h, g)
             counted: Dict[Tuple[int, int], int] = {}
             for walls in (_PairWalls(c, samples) for c in chunks):   # one chunk's walls at a time
                 # one way per pair (i's walls onto j's, j's normals): the pair's other way adds little but the time
@@ -273,6 +328,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                 dx, dy, dt = step[c:c + 3]
                 cx, cy = centre[k]
                 out[k] = tf.translation(cx + dx, cy + dy) @ tf.rigid(0.0, 0.0, dt) @ tf.translation(-cx, -cy) @ out[k]
+            directions.step(step)
             if np.abs(step[0::3]).max(initial=0) < STILL_M and np.abs(step[1::3]).max(initial=0) < STILL_M \
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import transforms as tf
 from .features import PreparedGrid, nonzero_2d, opposed
+from .orientation import angle_bound
 from .precision import corner_error
 from .validation import must_be_positive, must_not_be_negative
 
@@ -310,6 +311,9 @@ def in_gap(conflicts: np.ndarray, agreeing: np.ndarray, size_px: float) -> np.nd
     return out
 
 
+IMPRECISE = 'imprecise'   # how a refusal for precision begins
+
+
 def plausible(c: Placement, s: EstimationSettings) -> bool:
     """Agrees well over a common area large enough to mean something, and (almost) everywhere well inside both
     maps' views."""
@@ -343,8 +347,13 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
                 f'{s.max_deep_conflicts:.0%} (small pieces {s.max_movable_conflicts:.0%}, gaps '
                 f'{s.max_gap_conflicts:.0%}) of {c.support} agreeing')
     c.corner_error_m = corner_error(pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union) * pi.resolution
+    bound = angle_bound(pi, pj, c.transform) if c.corner_error_m > s.max_corner_error_m else None
+    if bound is not None:
+        # the shared walls leave the angle loose, but both maps' wall directions fix it (orientation.py)
+        c.corner_error_m = min(c.corner_error_m, pi.resolution * corner_error(
+            pi, pj, c.transform, s.verify_tolerance, moving_only=onto_union, angle_bound=bound))
     if c.corner_error_m > s.max_corner_error_m:
-        return (f'imprecise: the shared walls leave the far corners uncertain by '
+        return (f'{IMPRECISE}: the shared walls leave the far corners uncertain by '
                 f'{c.corner_error_m:.2f} m > {s.max_corner_error_m:.2f} m')
     return ''
 
