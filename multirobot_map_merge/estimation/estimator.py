@@ -32,10 +32,10 @@ from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .relax import FINAL, relax
+from .relax import FINAL, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
 from .tracking import move_verdict, track
-from .union import known_corners
+from .union import footprint, known_corners
 from .workers import ParallelMatcher
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
@@ -186,7 +186,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     maps near it, so small turns between neighbours can add up along a chain of robots (a live demo ended with one
     robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
     robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
-    in the same frame, and moves one of them by more than FRESH_MOVE_M or places more.
+    in the same frame, and places more, or moves one of them by more than FRESH_MOVE_M and the walls of the kept
+    grids' pairs fit it better (relax.walls_fitting: a fresh estimate can be the worse one).
 
     With a memory, a grid placed for the first time is left out until a later estimation confirms it
     (confirmation.py); `now` (seconds, the caller's clock: ROS time in the node) tells it how long the maps have
@@ -262,6 +263,14 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     if placed == len(kept) and moved <= FRESH_MOVE_M:
         log.debug('the final maps estimated afresh: the same placements (moved by up to %.3f m)', moved)
         return result   # the same placements up to the usual noise: the verdicts on them stand
+    if placed == len(kept):
+        before, after = _fits_of(grids, settings, cache, result.transforms, fresh.transforms, kept)
+        if after <= before:
+            # an estimate afresh can be the worse one: a live 12-robot run's turned a group by 0.2 degrees (20 cm)
+            # and replaced placements that were right
+            log.info('the final maps estimated afresh: placements moved by up to %.2f m, kept (walls fitting %d '
+                     'there, %d as kept)', moved, after, before)
+            return result
     log.info('the final maps estimated afresh: %d grids placed (%d before), moved by up to %.2f m at their corners',
              placed, len(kept), moved)
     # as above, the verdicts on the placements it did not move beyond the usual noise stand for its placements:
@@ -274,6 +283,17 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     return fresh
 
 
+
+
+def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
+             kept: Sequence[Optional[np.ndarray]], fresh: Sequence[Optional[np.ndarray]], placed: set) -> List[int]:
+    """The walls fitting (relax.walls_fitting) over the pairs of the kept placements, kept and estimated afresh."""
+    cache = cache or FeatureCache()
+    res = working_resolution(grids, settings)
+    prepared = [cache.get(g, res, settings.feature) if k in placed else None for k, g in enumerate(grids)]
+    boxes = {k: footprint(grids[k], kept[k]) for k in placed}
+    pairs = overlapping_pairs(sorted(k for k in placed if prepared[k] is not None), boxes, settings.min_overlap_m2)
+    return walls_fitting([{k: kept[k] for k in placed}, {k: fresh[k] for k in placed}], prepared, pairs, settings.seed)
 
 
 def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],

@@ -175,6 +175,17 @@ def _fits(chunks: List[List[Tuple[int, int]]], samples: Dict[int, Tuple[np.ndarr
                for w in (_PairWalls(c, samples) for c in chunks))
 
 
+def walls_fitting(placements: Sequence[Dict[int, np.ndarray]], prepared: Sequence[Optional[PreparedGrid]],
+                  pairs: Sequence[Tuple[int, int]], seed: int = 0) -> List[int]:
+    """For each set of placements (grid -> metric transform, one frame), the walls of the given pairs that fit (as
+    relax counts them, on the same sampled walls): which of several estimates of the same maps fits them better."""
+    rng = np.random.default_rng(seed)
+    grids = sorted({k for ij in pairs for k in ij})
+    samples = {k: _sample(prepared[k], rng) for k in grids}
+    chunks = _chunks(pairs, samples)
+    return [_fits(chunks, samples, prepared, placed) for placed in placements]
+
+
 def _normal_equations(pair: np.ndarray, p: np.ndarray, q: np.ndarray, n: np.ndarray, walls: _PairWalls,
                       prepared: Sequence[Optional[PreparedGrid]], out: Dict[int, np.ndarray],
                       centre: Dict[int, np.ndarray], column: Dict[int, int], h: np.ndarray, g: np.ndarray,
