@@ -283,8 +283,6 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     return fresh
 
 
-
-
 def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
              kept: Sequence[Optional[np.ndarray]], fresh: Sequence[Optional[np.ndarray]], placed: set) -> List[int]:
     """The walls fitting (relax.walls_fitting) over the pairs of the kept placements, kept and estimated afresh."""

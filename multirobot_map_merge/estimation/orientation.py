@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Tuple
 
 import cv2
 import numpy as np
@@ -75,7 +75,7 @@ def wall_orientation(work: np.ndarray, resolution: float) -> Optional[Orientatio
     return Orientation(mean, sigma)
 
 
-def misalignment(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray) -> Optional[tuple]:
+def misalignment(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray) -> Optional[Tuple[float, float]]:
     """(turn, sigma), radians: how far the placement `model` (pixels i -> pixels j) must turn for grid i's wall
     direction to meet grid j's (modulo 90 degrees, the smallest turn), and the standard error of that turn; None
     unless both grids have a direction."""

@@ -235,10 +235,10 @@ class _Directions:
     whose direction is off by more than orientation.MAX_TURN_DEGREES (a wing of another direction) takes no part."""
 
     def __init__(self, placed: Dict[int, np.ndarray], reference: int, prepared: Sequence[Optional[PreparedGrid]],
-                 column: int):
+                 at: int):
         self.of = {k: o for k in placed if prepared[k] is not None
                    for o in [orientation(prepared[k])] if o is not None}
-        self.column = column
+        self.at = at   # the building's direction: its row and column in the normal equations
         self.unknowns = 1 if len(self.of) >= 2 else 0
         self.building = None
         if self.unknowns:
@@ -253,7 +253,7 @@ class _Directions:
             h: np.ndarray, g: np.ndarray) -> None:
         if not self.unknowns:
             return
-        d = self.column
+        d = self.at
         for k in self.of:
             r = (self._placed(k, out[k], prepared) - self.building + math.pi / 4) % (math.pi / 2) - math.pi / 4
             if abs(r) > math.radians(MAX_TURN_DEGREES):
@@ -270,7 +270,7 @@ class _Directions:
 
     def step(self, step: np.ndarray) -> None:
         if self.unknowns:
-            self.building += float(step[self.column])
+            self.building += float(step[self.at])
 
 
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
