@@ -355,7 +355,7 @@ def test_a_placement_tracking_drops_is_searched_again_at_once(repo_root):
     grids = [load_map(str(folder / f'{n}.yaml')) for n in ('union', 'robot_1')]
     s, memory, names = EstimationSettings(), EstimationMemory(), ['union', 'robot_1']
     estimate(grids, s, preferred_reference=0, previous=[None, None], memory=memory, names=names)
-    placed = memory.held['robot_1'][0]   # placed for the first time: held until confirmed (confirmation.py)
+    placed = memory.held['robot_1'].transform   # placed for the first time: held until confirmed (confirmation.py)
     off = tf.rigid(1.0, 0.0, 0.0) @ placed
     again = estimate(grids, s, preferred_reference=0, previous=[np.eye(3), off], memory=memory, names=names)
     assert again.tracked == 0 and again.transforms[1] is not None

@@ -5,31 +5,36 @@ door, agreed 0.99 with 133 supporting walls and was 179 degrees and 42 m off (a 
 map of one room corner fitted a corner of another robot's room, 90 degrees and 51 m off. No rule on the maps of
 that moment tells them from right placements; the same maps a little later do: the placement checked on them
 (tracking.py) no longer holds. So a new placement is held back: the next estimations check it on the maps of then,
-as they check every placement they keep, and it is published once it still holds, at the same place, on a map of
-its own that has changed since (the corner's robot had sent no new map 2 s later, and the check on the same map
-still held), or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see more). A
+as they check every placement they keep, and it is published once it still holds, at the same place, on a common
+area with a map that stands (the reference, one published before, one confirmed now) grown by CONFIRM_GROWTH_M2
+since it was first held, or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see
+more). A check on maps that changed elsewhere sees nothing new: a live run published a robot's room a quarter turn
+off because the other robot's map had grown away from the room (the same 19 m2 in common); on the maps of a second
+later it agreed 0.85. New maps that grow together confirm only each other, not their place in the merge. A
 placement in the last published merge is not held again (a change of the merged frame re-places robots already
-confirmed); one that left the merge before is. Only with a memory (the node): merge_maps and the offline
+confirmed); one that left the merge before is, and is confirmed with a map that stands where a merge in some frame
+showed the two (memory.shown; a failed check forgets it). Only with a memory (the node): merge_maps and the offline
 benchmarks estimate once.
 
 The merged frame moves only to show more robots (keep_standing): when a group without the published reference
 outgrows the published group, its new placements are held in its own frame while the published group stays, and the
-merge moves to it once they are confirmed. A live 12-robot run had shown five robots for 100 sim s, then one for
-15 s: a group of seven had outgrown them, and all its members but its seed were held.
+merge moves to it once they are confirmed, gathered over estimations. A live 12-robot run had shown five robots for
+100 sim s, then one for 15 s: a group of seven had outgrown them, and all its members but its seed were held.
 """
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, List, Optional, Sequence
+import math
+from typing import TYPE_CHECKING, Dict, Hashable, List, NamedTuple, Optional, Sequence, Set
 
 import numpy as np
 
 from .. import transforms as tf
+from ..compose import warp_into
 from ..grid import Grid
-from .features import content_key
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .union import known_corners
+from .union import footprint, known_corners, overlap_area
 
 if TYPE_CHECKING:
     from .estimator import Estimate
@@ -42,6 +47,14 @@ SAME_PLACE_M = 0.5   # metres at the grid's corners: a confirmation refines a pl
 # slam_toolbox's default: 5 s), so that a few robots whose maps happen not to change between two estimations (2 s
 # apart) do not count as a fleet that has stopped, and have their first placements confirmed on the same maps
 STATIC_AFTER_S = 6.0
+# new common area a confirmation needs: as much as a pair needs at least (VerifySettings.min_overlap_m2)
+CONFIRM_GROWTH_M2 = 4.0
+
+
+class Held(NamedTuple):
+    """A new placement waiting for confirmation (memory.held, by name)."""
+    transform: np.ndarray        # metric: its map frame -> the frame of memory.held_reference
+    common: Dict[Hashable, float]   # name -> known area (m2) it shared with that placed map when first held here
 
 
 def static_for(memory: EstimationMemory, settled: bool, now: Optional[float]) -> bool:
@@ -68,7 +81,7 @@ def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Option
         out[preferred_reference] = np.eye(3)
     for k, name in enumerate(names):
         if out[k] is None and name in memory.held:
-            out[k] = memory.held[name][0]
+            out[k] = memory.held[name].transform
     return out
 
 
@@ -82,33 +95,102 @@ def held_in_frame(memory: EstimationMemory, reference_name) -> dict:
     own = memory.held.get(reference_name)
     if own is None:
         return {}
-    to_new = tf.inverse(own[0])
-    return {n: (to_new @ t, first) for n, (t, first) in memory.held.items() if n != reference_name}
+    to_new = tf.inverse(own.transform)
+    return {n: h._replace(transform=to_new @ h.transform) for n, h in memory.held.items() if n != reference_name}
+
+
+def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]],
+                 grids: Sequence[Optional[Grid]]) -> Dict[int, float]:
+    """The known area (m2) grid k, placed by transforms[k], shares with each other placed grid whose footprint
+    meets its own (counted at its resolution)."""
+    grid, placed = grids[k], transforms[k]
+    box = footprint(grid, placed)
+    if box is None:
+        return {}
+    res = grid.resolution
+    shape = (max(int(math.ceil((box[3] - box[1]) / res)), 1), max(int(math.ceil((box[2] - box[0]) / res)), 1))
+    to_canvas = tf.scaling(1.0 / res) @ tf.translation(-box[0], -box[1])
+
+    def known(g: Grid, t: np.ndarray) -> np.ndarray:
+        cells = np.full(shape, -1, np.int8)
+        warp_into(cells, g.data, to_canvas @ t @ g.cell_to_map())
+        return cells >= 0
+
+    own = known(grid, placed)
+    out = {}
+    for m, t in enumerate(transforms):
+        if m != k and t is not None and grids[m] is not None and overlap_area(footprint(grids[m], t), box) > 0.0:
+            out[m] = float(np.count_nonzero(own & known(grids[m], t))) * res ** 2
+    return out
+
+
+def confirmed_now(new: Sequence[int], standing: Set[int], transforms: Sequence[Optional[np.ndarray]],
+                  grids: Sequence[Optional[Grid]], common: Dict[int, Dict[int, float]],
+                  first: Dict[int, Dict[Hashable, float]], memory: EstimationMemory, names: Sequence) -> Set[int]:
+    """The new grids held before at the same place (`first`: their common areas then, by name) that a grid m that
+    stands, or one confirmed before them, confirms: their common area has grown by CONFIRM_GROWTH_M2 since, or a
+    merge in some frame showed both as they are placed now, relative to each other (memory.shown: the merge moved
+    to a larger group and left them out, and the groups have joined since)."""
+    def shown_so(k: int, m: int) -> bool:
+        was_k, was_m = memory.shown.get(names[k]) or {}, memory.shown.get(names[m]) or {}
+        now = tf.inverse(transforms[m]) @ transforms[k]
+        return any(tf.difference(now, tf.inverse(was_m[frame]) @ t, known_corners(grids[k]))[1] <= SAME_PLACE_M
+                   for frame, t in was_k.items() if frame in was_m)
+
+    confirmed: Set[int] = set()
+    grown = True
+    while grown:
+        grown = False
+        for k in new:
+            if k in confirmed or k not in first:
+                continue
+            if any(common[k].get(m, 0.0) >= first[k].get(names[m], 0.0) + CONFIRM_GROWTH_M2 or shown_so(k, m)
+                   for m in standing | confirmed):
+                confirmed.add(k)
+                grown = True
+    return confirmed
+
+
+def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Optional[int], memory: EstimationMemory,
+                   names: Sequence) -> None:
+    """What the merge about to be published shows (memory.shown)."""
+    for k, t in enumerate(transforms):
+        if t is not None and reference is not None:
+            memory.shown.put(names[k], {**(memory.shown.get(names[k]) or {}), names[reference]: t})
 
 
 def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], pairs: List[PairMatch],
              published: Optional[Sequence[Optional[np.ndarray]]], memory: EstimationMemory, names: Sequence,
-             grids: Sequence[Optional[Grid]], contents: Optional[Sequence[Optional[str]]], settled: bool) -> int:
+             grids: Sequence[Optional[Grid]], settled: bool) -> int:
     """Hold back (in place: transforms set to None, a reason added to `pairs`) the grids placed now that were not
-    published before, unless the last estimation held them at the same place (held_in_frame) and the map has
-    changed since it was first held, or every map is the same as in the last estimation (`settled`); how many.
-    `contents`: the grids' content keys when the estimation has them (features.content_key)."""
+    published before, unless the last estimation held them at the same place (held_in_frame) and their common area
+    with a grid that stands (the reference, those published before) or one confirmed now has grown by
+    CONFIRM_GROWTH_M2 since they were first held there (or a merge showed the two so: confirmed_now), or every map
+    is the same as in the last estimation (`settled`); how many. Held grids that grow together do not confirm each
+    other: in a live run, two new robots right relative to each other were a quarter turn off the merge."""
     held_before = held_in_frame(memory, names[reference]) if reference is not None else {}
-    memory.held = {}
+    memory.held, memory.confirmed = {}, {}
     memory.held_reference = names[reference] if reference is not None else None
-    for k, t in enumerate(transforms):
-        if t is None or k == reference or (published is not None and k < len(published)
-                                           and published[k] is not None):
-            continue
+    placed = [k for k, t in enumerate(transforms) if t is not None]
+    standing = {k for k in placed if k == reference
+                or (published is not None and k < len(published) and published[k] is not None)}
+    new = [k for k in placed if k not in standing]
+    common = {k: common_areas(k, transforms, grids) for k in new}
+    first = {}   # the common areas of those held before at the same place, when first held there
+    for k in new:
         before = held_before.get(names[k])
-        now = contents[k] if contents is not None else content_key(grids[k])
-        first = now   # the content of the map it was first held on, while it is held at the same place
-        if before is not None and tf.difference(t, before[0], known_corners(grids[k]))[1] <= SAME_PLACE_M:
-            first = before[1]
-            if settled or first != now:
-                log.debug('grid %d: placement confirmed', k)
-                continue
-        memory.held[names[k]] = (t, first)
+        if before is not None and \
+                tf.difference(transforms[k], before.transform, known_corners(grids[k]))[1] <= SAME_PLACE_M:
+            first[k] = before.common
+    confirmed = set(first) if settled else confirmed_now(new, standing, transforms, grids, common, first, memory,
+                                                          names)
+    for k in new:
+        held = Held(transforms[k], first.get(k, {names[m]: area for m, area in common[k].items()}))
+        if k in confirmed:
+            log.debug('grid %d: placement confirmed', k)
+            memory.confirmed[names[k]] = held
+            continue
+        memory.held[names[k]] = held
         transforms[k] = None
         pairs[:] = [p for p in pairs if p.i != k]
         pairs.append(PairMatch(k, reference, reason=HELD))
@@ -116,11 +198,13 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
 
 
 def keep_standing(result: 'Estimate', published: Optional[Sequence[Optional[np.ndarray]]],
-                  preferred_reference: Optional[int]) -> bool:
+                  preferred_reference: Optional[int], memory: EstimationMemory) -> bool:
     """After hold_new: when the estimation chose a group without the preferred (published) reference and that group
     now shows fewer grids than the group holding the reference had published, the latter is published instead (in
     place: `result`'s transforms, reference and pairs); the chosen group's placements stay held in its frame, to be
-    confirmed when a later estimation chooses it again. Whether it did."""
+    confirmed when a later estimation chooses it again, those confirmed now with the common area they were first
+    held on (else each would start anew, and the group could never show its members confirmed together). Whether
+    it did."""
     if result.standing is None or published is None or preferred_reference is None:
         return False
     members, links = result.standing
@@ -131,6 +215,7 @@ def keep_standing(result: 'Estimate', published: Optional[Sequence[Optional[np.n
     log.debug('a group of %d grids around grid %d outgrew the published one, its new placements held: %d grids '
               'published around grid %d', shown + result.held, result.reference, len(kept), preferred_reference)
     chosen_seed = result.reference
+    memory.held.update(memory.confirmed)
     result.transforms = [members[k] if k in kept else None for k in range(len(result.transforms))]
     result.reference = preferred_reference
     result.pairs = [link for link in links if link.i in kept] + [p for p in result.pairs if p.i not in kept]

@@ -27,7 +27,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
-from .confirmation import hold_new, keep_standing, static_for, with_held
+from .confirmation import hold_new, keep_standing, remember_shown, static_for, with_held
 from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
@@ -203,8 +203,9 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
                             contents, inputs, settled)
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
-                               contents, static_for(memory, settled, now))
-        keep_standing(result, published, preferred_reference)
+                               static_for(memory, settled, now))
+        keep_standing(result, published, preferred_reference, memory)
+        remember_shown(result.transforms, result.reference, memory, names)
     result.pairs = unique_pairs(result.pairs)
     return result
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
-from typing import Dict, Hashable, Optional, Tuple
+from typing import Any, Dict, Hashable, Optional, Tuple
 
 import numpy as np
 
@@ -62,13 +62,13 @@ class Store:
     """A bounded dictionary, oldest entries dropped first."""
 
     def __init__(self, capacity: int = 4096):
-        self._items: "OrderedDict[Hashable, tuple]" = OrderedDict()
+        self._items: "OrderedDict[Hashable, Any]" = OrderedDict()
         self._capacity = capacity
 
-    def get(self, key: Hashable) -> Optional[tuple]:
+    def get(self, key: Hashable) -> Optional[Any]:
         return self._items.get(key)
 
-    def put(self, key: Hashable, value: tuple) -> None:
+    def put(self, key: Hashable, value: Any) -> None:
         self._items[key] = value
         self._items.move_to_end(key)
         while len(self._items) > self._capacity:
@@ -98,8 +98,12 @@ class EstimationMemory:
         self.postponed_inputs: Optional[tuple] = None
         self.postponed_rounds = 0   # estimations in a row on those maps, each with twice the budget of the last
         self.relaxed: Optional[Dict[str, Grid]] = None
-        # name -> (a new placement waiting for confirmation, the content key of the map it was first held on)
-        self.held: Dict[str, Tuple[np.ndarray, str]] = {}
+        # name -> a new placement waiting for confirmation (confirmation.Held)
+        self.held: Dict[str, tuple] = {}
+        self.confirmed: Dict[str, tuple] = {}   # the held placements the last estimation confirmed (the same kind)
+        # name -> {a reference's name: its placement in the last merge in that frame that showed it} (forgotten
+        # when a check of its placement fails: tracking.py)
+        self.shown = Store()
         self.held_reference: Optional[str] = None   # the reference grid's name in the estimation that held them
         self.unchanged_since: Optional[float] = None
         self._compared: Dict[Tuple[int, int], tuple] = {}   # this estimation's comparisons (see unchanged)

@@ -149,6 +149,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
         if c.transform is None:   # its map frame may have moved (a SLAM failure): nothing learnt of it stands
             memory.checks.drop(names[k])
             memory.keypoints.drop(names[k])
+            memory.shown.drop(names[k])
         return c
 
     checks: Dict[int, Check] = {}

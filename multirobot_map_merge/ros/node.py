@@ -16,8 +16,8 @@ Threads (rospy runs every subscriber on its own thread; callbacks only convert +
     re-checks the robots placed by the last one against the union of the others (tracking: a placement is kept,
     refined, while it passes the acceptance rules, and dropped at once when it does not), then matches the robots
     not placed against the union of the placed ones (estimation/); a robot placed for the first time is published
-    once a later estimation confirms it on a newer map of it (estimation/confirmation.py), the next one coming at
-    most CONFIRM_S later;
+    once a later estimation confirms it on more area shared with the published ones (estimation/confirmation.py),
+    the next one coming at most CONFIRM_S later;
   * merging: every 1/merging_rate s: the newest maps, the last estimated transforms (kept per robot name, so they
     follow the robot when the list grows), compose, publish (and ~status after a new estimation, so that its
     transforms match the merged map published with it).
