@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING, Dict, Hashable, List, NamedTuple, Optional, Sequence, Set
+from typing import TYPE_CHECKING, Dict, Hashable, List, NamedTuple, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -102,25 +102,28 @@ def held_in_frame(memory: EstimationMemory, reference_name) -> dict:
 def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]],
                  grids: Sequence[Optional[Grid]]) -> Dict[int, float]:
     """The known area (m2) grid k, placed by transforms[k], shares with each other placed grid whose footprint
-    meets its own (counted at its resolution)."""
+    meets its own (counted at its resolution, where the two footprints meet)."""
     grid, placed = grids[k], transforms[k]
     box = footprint(grid, placed)
     if box is None:
         return {}
     res = grid.resolution
-    shape = (max(int(math.ceil((box[3] - box[1]) / res)), 1), max(int(math.ceil((box[2] - box[0]) / res)), 1))
-    to_canvas = tf.scaling(1.0 / res) @ tf.translation(-box[0], -box[1])
 
-    def known(g: Grid, t: np.ndarray) -> np.ndarray:
+    def known(g: Grid, t: np.ndarray, x0: float, y0: float, shape: Tuple[int, int]) -> np.ndarray:
         cells = np.full(shape, -1, np.int8)
-        warp_into(cells, g.data, to_canvas @ t @ g.cell_to_map())
+        warp_into(cells, g.data, tf.scaling(1.0 / res) @ tf.translation(-x0, -y0) @ t @ g.cell_to_map())
         return cells >= 0
 
-    own = known(grid, placed)
     out = {}
     for m, t in enumerate(transforms):
-        if m != k and t is not None and grids[m] is not None and overlap_area(footprint(grids[m], t), box) > 0.0:
-            out[m] = float(np.count_nonzero(own & known(grids[m], t))) * res ** 2
+        other = footprint(grids[m], t) if m != k and t is not None and grids[m] is not None else None
+        if other is None or overlap_area(other, box) <= 0.0:
+            continue
+        x0, y0 = max(box[0], other[0]), max(box[1], other[1])
+        shape = (max(int(math.ceil((min(box[3], other[3]) - y0) / res)), 1),
+                 max(int(math.ceil((min(box[2], other[2]) - x0) / res)), 1))
+        both = known(grid, placed, x0, y0, shape) & known(grids[m], t, x0, y0, shape)
+        out[m] = float(np.count_nonzero(both)) * res ** 2
     return out
 
 
