@@ -34,7 +34,7 @@ from ..compose import warp_into
 from ..grid import Grid
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .union import footprint, known_corners, overlap_area
+from .union import Box, footprint, known_corners, overlap_area
 
 if TYPE_CHECKING:
     from .estimator import Estimate
@@ -99,12 +99,11 @@ def held_in_frame(memory: EstimationMemory, reference_name) -> dict:
     return {n: h._replace(transform=to_new @ h.transform) for n, h in memory.held.items() if n != reference_name}
 
 
-def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]],
-                 grids: Sequence[Optional[Grid]]) -> Dict[int, float]:
+def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]], grids: Sequence[Optional[Grid]],
+                 boxes: Dict[int, Optional[Box]]) -> Dict[int, float]:
     """The known area (m2) grid k, placed by transforms[k], shares with each other placed grid whose footprint
-    meets its own (counted at its resolution, where the two footprints meet)."""
-    grid, placed = grids[k], transforms[k]
-    box = footprint(grid, placed)
+    (`boxes`, union.footprint of every placed grid) meets its own, counted at its resolution where the two meet."""
+    grid, placed, box = grids[k], transforms[k], boxes.get(k)
     if box is None:
         return {}
     res = grid.resolution
@@ -115,29 +114,29 @@ def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]],
         return cells >= 0
 
     out = {}
-    for m, t in enumerate(transforms):
-        other = footprint(grids[m], t) if m != k and t is not None and grids[m] is not None else None
-        if other is None or overlap_area(other, box) <= 0.0:
+    for m, other in boxes.items():
+        if m == k or other is None or overlap_area(other, box) <= 0.0:
             continue
         x0, y0 = max(box[0], other[0]), max(box[1], other[1])
         shape = (max(int(math.ceil((min(box[3], other[3]) - y0) / res)), 1),
                  max(int(math.ceil((min(box[2], other[2]) - x0) / res)), 1))
-        both = known(grid, placed, x0, y0, shape) & known(grids[m], t, x0, y0, shape)
+        both = known(grid, placed, x0, y0, shape) & known(grids[m], transforms[m], x0, y0, shape)
         out[m] = float(np.count_nonzero(both)) * res ** 2
     return out
 
 
 def confirmed_now(new: Sequence[int], standing: Set[int], transforms: Sequence[Optional[np.ndarray]],
-                  grids: Sequence[Optional[Grid]], common: Dict[int, Dict[int, float]],
+                  corners: Dict[int, np.ndarray], common: Dict[int, Dict[int, float]],
                   first: Dict[int, Dict[Hashable, float]], memory: EstimationMemory, names: Sequence) -> Set[int]:
     """The new grids held before at the same place (`first`: their common areas then, by name) that a grid m that
     stands, or one confirmed before them, confirms: their common area has grown by CONFIRM_GROWTH_M2 since, or a
     merge in some frame showed both as they are placed now, relative to each other (memory.shown: the merge moved
-    to a larger group and left them out, and the groups have joined since)."""
+    to a larger group and left them out, and the groups have joined since). `corners`: union.known_corners of the
+    new grids."""
     def shown_so(k: int, m: int) -> bool:
         was_k, was_m = memory.shown.get(names[k]) or {}, memory.shown.get(names[m]) or {}
         now = tf.inverse(transforms[m]) @ transforms[k]
-        return any(tf.difference(now, tf.inverse(was_m[frame]) @ t, known_corners(grids[k]))[1] <= SAME_PLACE_M
+        return any(tf.difference(now, tf.inverse(was_m[frame]) @ t, corners[k])[1] <= SAME_PLACE_M
                    for frame, t in was_k.items() if frame in was_m)
 
     confirmed: Set[int] = set()
@@ -157,8 +156,10 @@ def confirmed_now(new: Sequence[int], standing: Set[int], transforms: Sequence[O
 def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Optional[int], memory: EstimationMemory,
                    names: Sequence) -> None:
     """What the merge about to be published shows (memory.shown)."""
+    if reference is None:
+        return
     for k, t in enumerate(transforms):
-        if t is not None and reference is not None:
+        if t is not None:
             memory.shown.put(names[k], {**(memory.shown.get(names[k]) or {}), names[reference]: t})
 
 
@@ -178,14 +179,15 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
     standing = {k for k in placed if k == reference
                 or (published is not None and k < len(published) and published[k] is not None)}
     new = [k for k in placed if k not in standing]
-    common = {k: common_areas(k, transforms, grids) for k in new}
+    boxes = {k: footprint(grids[k], transforms[k]) for k in placed if grids[k] is not None} if new else {}
+    common = {k: common_areas(k, transforms, grids, boxes) for k in new}
+    corners = {k: known_corners(grids[k]) for k in new}
     first = {}   # the common areas of those held before at the same place, when first held there
     for k in new:
         before = held_before.get(names[k])
-        if before is not None and \
-                tf.difference(transforms[k], before.transform, known_corners(grids[k]))[1] <= SAME_PLACE_M:
+        if before is not None and tf.difference(transforms[k], before.transform, corners[k])[1] <= SAME_PLACE_M:
             first[k] = before.common
-    confirmed = set(first) if settled else confirmed_now(new, standing, transforms, grids, common, first, memory,
+    confirmed = set(first) if settled else confirmed_now(new, standing, transforms, corners, common, first, memory,
                                                           names)
     for k in new:
         held = Held(transforms[k], first.get(k, {names[m]: area for m, area in common[k].items()}))
