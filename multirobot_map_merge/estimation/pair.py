@@ -329,7 +329,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
     result.accepted = not result.reason
     log.debug('pair %d-%d: %d descriptor matches (%d inliers), %d wall correspondences (%d inliers), confidence '
-              '%.3f, agreement %.3f, overlap %.1f m2, %s', i, j, result.descriptor_matches, result.descriptor_inliers,
+              '%.3f, agreement %.3f, overlap %.1f m2%s, %s', i, j, result.descriptor_matches, result.descriptor_inliers,
               result.matches, result.inliers, result.confidence, best.agreement, best.overlap_m2,
+              f', expected error at the far corners {best.corner_error_m:.2f} m' if best.corner_error_m else '',
               'accepted' if result.accepted else result.reason)
     return result
