@@ -19,7 +19,7 @@ import numpy as np
 from .. import transforms as tf
 from .features import PreparedGrid, nonzero_2d, opposed
 from .orientation import angle_bound
-from .precision import corner_error
+from .precision import corner_error, corners_of
 from .validation import must_be_positive, must_not_be_negative
 
 if TYPE_CHECKING:
@@ -358,21 +358,16 @@ def refusal(c: Placement, pi: PreparedGrid, pj: PreparedGrid, s: EstimationSetti
     return ''
 
 
-def _corners(pi: PreparedGrid) -> np.ndarray:
-    h, w = pi.work.shape
-    return np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
-
-
 def distinct(a: np.ndarray, b: np.ndarray, pi: PreparedGrid, s: EstimationSettings) -> bool:
     """Whether two placements (pixel transforms of grid i) are different places, not two estimates of one."""
-    rot, disp = tf.difference(a, b, _corners(pi))
+    rot, disp = tf.difference(a, b, corners_of(pi))
     return rot > math.radians(s.distinct_degrees) or disp * pi.resolution > s.distinct_metres
 
 
 def same_place(a: np.ndarray, b: np.ndarray, pi: PreparedGrid) -> bool:
     """Whether two placements of grid i (pixel transforms) are one estimate: no corner of i lands SAME_PLACE_PX
     pixels apart (ICP from either ends at the same place)."""
-    return tf.difference(a, b, _corners(pi))[1] < SAME_PLACE_PX
+    return tf.difference(a, b, corners_of(pi))[1] < SAME_PLACE_PX
 
 
 def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: bool = False) -> bool:
