@@ -14,6 +14,8 @@ from multirobot_map_merge.estimation.settings import EstimationSettings
 from multirobot_map_merge.grid import Grid
 from multirobot_map_merge.mapio import load_map
 
+EARLY_JOINS_M = 0.4   # max_corner_error_m for the live demos' early maps below (the default is 0.25)
+
 
 def _sample(repo_root, name):
     folder = repo_root / 'data' / 'samples' / name
@@ -336,7 +338,10 @@ def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
     names = sorted(starts)
     grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
     ref = names.index('robot_3')
-    found = estimate(grids, EstimationSettings(), preferred_reference=ref)
+    # the joins of these early maps (10-13 m2 each) leave the far corners 0.30-0.33 m uncertain, over the default
+    # bound since the precision rule's calibration (bench/calibrate_precision.py): with a laxer bound, they test
+    # the matching of the two groups
+    found = estimate(grids, EstimationSettings(max_corner_error_m=EARLY_JOINS_M), preferred_reference=ref)
     assert found.reference == ref
     placed = {names[k] for k, t in enumerate(found.transforms) if t is not None}
     assert {'robot_4', 'robot_6'} <= placed, placed
@@ -353,7 +358,8 @@ def test_a_placement_tracking_drops_is_searched_again_at_once(repo_root):
     from multirobot_map_merge.estimation.memory import EstimationMemory
     folder = repo_root / 'test' / 'data' / 'demo_early_small_map'
     grids = [load_map(str(folder / f'{n}.yaml')) for n in ('union', 'robot_1')]
-    s, memory, names = EstimationSettings(), EstimationMemory(), ['union', 'robot_1']
+    # its placement leaves the far corners 0.37 m uncertain: see test_a_group_grown_after_an_earlier_one_...
+    s, memory, names = EstimationSettings(max_corner_error_m=EARLY_JOINS_M), EstimationMemory(), ['union', 'robot_1']
     estimate(grids, s, preferred_reference=0, previous=[None, None], memory=memory, names=names)
     placed = memory.held['robot_1'].transform   # placed for the first time: held until confirmed (confirmation.py)
     off = tf.rigid(1.0, 0.0, 0.0) @ placed
