@@ -4,7 +4,7 @@
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--seeds S ...] [--markdown FILE]
-    scripts/env.sh python bench/bench_merge.py --reveal SHARES [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py --reveal SHARES [--generated [NAMES]] [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
 Estimation "cold" = fresh MergingPipeline (empty feature cache); "warm" = a second estimate() on the same
@@ -432,19 +432,19 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
     return status
 
 
-def run_reveal(data_dir: Path, shares: List[float]) -> List[str]:
-    """The 30-map scenario revealed as a fleet explores it (bench/reveal.py: 2 m tiles, nearest to each robot's start
-    first, as bench_node publishes them), estimated afresh at each share of the reveal and scored: maps placed, and
-    those placed wrong with their errors."""
+def run_reveal(folder: Path, shares: List[float]) -> List[str]:
+    """A scenario (the 30-map one, or a generated building) revealed as a fleet explores it (bench/reveal.py: 2 m
+    tiles, nearest to each robot's start first, as bench_node publishes them), estimated afresh at each share of the
+    reveal and scored: maps placed, and those placed wrong with their errors."""
     from multirobot_map_merge.estimation.estimator import estimate
     from multirobot_map_merge.estimation.settings import EstimationSettings
     from reveal import reveal_order, revealed_grids, score_placements, scorer, wrong_of
     score = scorer()
     if score is None:
         return ['bench_merge: ../shared/eval/score.py not found: nothing to score']
-    grids, truth = load_scenario(data_dir / ROWS['large30'][0])
+    grids, truth = load_scenario(folder)
     orders = [reveal_order(g) for g in grids]
-    lines = [f'{ROWS["large30"][0]} revealed tile by tile, estimated afresh (merge_maps settings) and scored; '
+    lines = [f'{folder.name} revealed tile by tile, estimated afresh (merge_maps settings) and scored; '
              f'{machine.describe()}', '',
              '| share revealed | known m2 (median map) | placed | placed wrong | estimate (s) | wrong: file, degrees, '
              'cells |', '|---|---|---|---|---|---|']
@@ -485,8 +485,9 @@ def main() -> int:
                     help='with --generated: merge each building once per seed of the random sampling (merge_maps '
                          '--seed), then a table of placed right and false merges per building and seed (default: 0)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
-                    help='only the 30-map scenario revealed as a fleet explores it, estimated afresh at these shares '
-                         'of the reveal (comma-separated, 0..1) and scored: the maps placed wrong on partial maps')
+                    help='only the 30-map scenario (or with --generated, those buildings) revealed as a fleet explores '
+                         'it, estimated afresh at these shares of the reveal (comma-separated, 0..1) and scored: the '
+                         'maps placed wrong on partial maps')
     ap.add_argument('--row', choices=list(ROWS) + list(GENERATED_ROWS), help=argparse.SUPPRESS)   # internal
     args = ap.parse_args()
     if args.no_processes:
@@ -500,6 +501,15 @@ def main() -> int:
         if unknown:
             ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
         cache = (args.large36 or REPO / 'out' / 'bench').resolve()
+        if args.reveal:
+            lines = []
+            for name in names:
+                ensure_generated(cache, name)
+                lines += run_reveal(cache / name, args.reveal) + ['']
+            print('\n'.join(lines))
+            if args.markdown:
+                args.markdown.write_text('\n'.join(lines))
+            return 0
         if args.seeds != [0]:
             return run_seeds(names, cache, args.markdown, args.replay, args.seeds)
         return run_buildings(names, cache, args.markdown, args.replay)
@@ -514,7 +524,7 @@ def main() -> int:
         print(json.dumps(run_row(args.row, data_dir, max(1, args.repeat))))
         return 0
     if args.reveal:
-        lines = run_reveal(data_dir, args.reveal)
+        lines = run_reveal(data_dir / ROWS['large30'][0], args.reveal)
         print('\n'.join(lines))
         if args.markdown:
             args.markdown.write_text('\n'.join(lines) + '\n')
