@@ -37,11 +37,6 @@ NEAR_DEGREES, NEAR_M = 5.0, 3.0
 OFF_M = (0.15, 0.30)
 
 
-def pose_matrix(pose: List[float]) -> np.ndarray:
-    x, y, a = pose
-    return np.array([[math.cos(a), -math.sin(a), x], [math.sin(a), math.cos(a), y], [0.0, 0.0, 1.0]])
-
-
 def scenarios(data: Path) -> List[Path]:
     if (data / 'truth.json').is_file():
         return [data]
@@ -78,7 +73,7 @@ def matched(job: Tuple[str, int, int]) -> Optional[Tuple[float, float, float]]:
     if not m.accepted or m.best is None:
         return None
     est = m.best.transform
-    true = tf.inverse(pj.px_to_map) @ tf.inverse(pose_matrix(maps[j]['pose'])) @ pose_matrix(maps[i]['pose']) \
+    true = tf.inverse(pj.px_to_map) @ tf.inverse(tf.rigid(*maps[j]['pose'])) @ tf.rigid(*maps[i]['pose']) \
         @ pi.px_to_map
     ci, cj = precision.corners_of(pi), precision.corners_of(pj)
     # i's corners as placed against the truth, and j's seen from i (both maps' far corners, as the rule counts)
