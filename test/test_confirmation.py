@@ -303,3 +303,40 @@ def test_two_maps_shown_together_before_are_confirmed_together_where_they_were()
         transforms = [np.eye(3)] * 3
         hold_new(transforms, 0, [], published, memory, names, [a, p_now, q], False)
         assert [t is not None for t in transforms] == placed
+
+
+def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_other_place_for_it():
+    """r stands; b (held) meets r, c (held) meets only b, and both grow so that the growth rule alone confirms both
+    (the test above). The check on the merge that stands (uniqueness.StandingCheck, stubbed here) decides: a
+    place that contradicts the merge refuses b and c placed with it; a rival place for c refuses c alone; b too
+    little in common with the merge to be judged there waits, and c with it (confirmed only by a grid confirmed
+    now); nothing against either confirms both."""
+    from multirobot_map_merge.estimation.uniqueness import CONTRADICTS
+
+    def free(x0, width_m, height_m):   # all free cells, in the merged frame itself
+        return Grid(np.zeros((int(round(height_m / 0.05)), int(round(width_m / 0.05))), np.int8), 0.05,
+                    (x0, 0.0, 0.0))
+
+    names = ['r', 'b', 'c']
+    published = [np.eye(3), None, None]
+    r = free(0.0, 4.0, 4.0)
+    cases = (({1: f'{CONTRADICTS}: agreement 0.80', 2: ''}, [True, False, False]),
+             ({1: '', 2: 'another place on the merge that stands agrees 1.00'}, [True, True, False]),
+             ({1: None, 2: None}, [True, False, False]),
+             ({1: '', 2: None}, [True, True, True]))
+    for verdicts, placed in cases:
+        judged = []
+
+        def check(k, transform, standing, settled):
+            assert set(standing) == {0} and not settled
+            judged.append(k)
+            return verdicts[k]
+
+        memory = EstimationMemory()
+        assert hold_new([np.eye(3)] * 3, 0, [], published, memory, names,
+                        [r, free(2.0, 2.0, 2.0), free(6.0, 2.0, 2.0)], False, check) == 2
+        assert judged == []   # nothing confirmed yet: nothing judged
+        transforms = [np.eye(3)] * 3
+        hold_new(transforms, 0, [], published, memory, names, [r, free(0.0, 8.0, 2.0), free(5.0, 3.0, 4.0)], False,
+                 check)
+        assert [t is not None for t in transforms] == placed, verdicts

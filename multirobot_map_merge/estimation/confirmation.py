@@ -10,7 +10,9 @@ area with a map that stands (the reference, one published before, one confirmed 
 since it was first held, or once no map has changed for STATIC_AFTER_S (static maps: no estimation will see
 more). A check on maps that changed elsewhere sees nothing new: a live run published a robot's room a quarter turn
 off because the other robot's map had grown away from the room (the same 19 m2 in common); on the maps of a second
-later it agreed 0.85. New maps that grow together confirm only each other, not their place in the merge. A
+later it agreed 0.85. New maps that grow together confirm only each other, not their place in the merge. Where the
+building repeats itself, maps that grow keep fitting an alias too: a placement is also judged on the merge that
+stands before it is confirmed (uniqueness.py). A
 placement in the last published merge is not held again (a change of the merged frame re-places robots already
 confirmed); one that left the merge before is, and is confirmed with a map that stands where a merge in some frame
 showed the two (memory.shown; a failed check forgets it). Only with a memory (the node): merge_maps and the offline
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING, Dict, Hashable, List, NamedTuple, Optional, Sequence, Set, Tuple
+from typing import TYPE_CHECKING, Callable, Dict, Hashable, List, NamedTuple, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -34,6 +36,7 @@ from ..compose import warp_into
 from ..grid import Grid
 from .memory import EstimationMemory
 from .pair import PairMatch
+from .uniqueness import CONTRADICTS
 from .union import Box, footprint, known_corners, overlap_area
 
 if TYPE_CHECKING:
@@ -127,7 +130,8 @@ def common_areas(k: int, transforms: Sequence[Optional[np.ndarray]], grids: Sequ
 
 def confirmed_now(new: Sequence[int], standing: Set[int], transforms: Sequence[Optional[np.ndarray]],
                   corners: Dict[int, np.ndarray], common: Dict[int, Dict[int, float]],
-                  first: Dict[int, Dict[Hashable, float]], memory: EstimationMemory, names: Sequence) -> Set[int]:
+                  first: Dict[int, Dict[Hashable, float]], memory: EstimationMemory, names: Sequence,
+                  verdict: Callable[[int], Optional[str]] = lambda k: '') -> Set[int]:
     """The new grids held before at the same place (`first`: their common areas then, by name) that a grid m that
     stands, or one confirmed before them, confirms: their common area has grown by CONFIRM_GROWTH_M2 since, or a
     merge in some frame showed both as they are placed now, relative to each other (memory.shown: the merge moved
@@ -146,11 +150,28 @@ def confirmed_now(new: Sequence[int], standing: Set[int], transforms: Sequence[O
         for k in new:
             if k in confirmed or k not in first:
                 continue
-            if any(common[k].get(m, 0.0) >= first[k].get(names[m], 0.0) + CONFIRM_GROWTH_M2 or shown_so(k, m)
-                   for m in standing | confirmed):
+            by = [m for m in standing | confirmed
+                  if common[k].get(m, 0.0) >= first[k].get(names[m], 0.0) + CONFIRM_GROWTH_M2 or shown_so(k, m)]
+            if not by:
+                continue
+            why = verdict(k)
+            # one that shares too little with the merge that stands to be judged there (None) is confirmed only
+            # by a grid confirmed now
+            if why == '' or (why is None and any(m in confirmed for m in by)):
                 confirmed.add(k)
                 grown = True
     return confirmed
+
+
+def together(k: int, new: Sequence[int], common: Dict[int, Dict[int, float]]) -> Set[int]:
+    """The new grids linked to new grid k by known area they share, one with the next (k among them)."""
+    out, todo = {k}, [k]
+    while todo:
+        for m, area in common.get(todo.pop(), {}).items():
+            if m in common and m not in out and area > 0.0:
+                out.add(m)
+                todo.append(m)
+    return out
 
 
 def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Optional[int], memory: EstimationMemory,
@@ -165,13 +186,17 @@ def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Option
 
 def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], pairs: List[PairMatch],
              published: Optional[Sequence[Optional[np.ndarray]]], memory: EstimationMemory, names: Sequence,
-             grids: Sequence[Optional[Grid]], settled: bool) -> int:
+             grids: Sequence[Optional[Grid]], settled: bool,
+             check: Optional[Callable[[int, np.ndarray, Dict[int, np.ndarray], bool], Optional[str]]] = None) -> int:
     """Hold back (in place: transforms set to None, a reason added to `pairs`) the grids placed now that were not
     published before, unless the last estimation held them at the same place (held_in_frame) and their common area
     with a grid that stands (the reference, those published before) or one confirmed now has grown by
     CONFIRM_GROWTH_M2 since they were first held there (or a merge showed the two so: confirmed_now), or every map
     is the same as in the last estimation (`settled`); how many. Held grids that grow together do not confirm each
-    other: in a live run, two new robots right relative to each other were a quarter turn off the merge."""
+    other: in a live run, two new robots right relative to each other were a quarter turn off the merge. With a
+    `check` (uniqueness.StandingCheck: why a grid, placed so, is not confirmed on the grids that stand; None when
+    it shares too little with them to be judged), a grid is confirmed only when it finds nothing against it, and
+    one it does not judge only by a grid confirmed now."""
     held_before = held_in_frame(memory, names[reference]) if reference is not None else {}
     memory.held, memory.confirmed = {}, {}
     memory.held_reference = names[reference] if reference is not None else None
@@ -187,8 +212,28 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
         before = held_before.get(names[k])
         if before is not None and tf.difference(transforms[k], before.transform, corners[k])[1] <= SAME_PLACE_M:
             first[k] = before.common
-    confirmed = set(first) if settled else confirmed_now(new, standing, transforms, corners, common, first, memory,
-                                                          names)
+    verdicts: Dict[int, Optional[str]] = {}
+    base = {m: transforms[m] for m in standing}
+
+    def verdict(k: int) -> Optional[str]:
+        if check is None:
+            return ''
+        if k not in verdicts:
+            verdicts[k] = check(k, transforms[k], base, settled)
+            if verdicts[k]:
+                log.debug('grid %d: placement not confirmed: %s', k, verdicts[k])
+                if verdicts[k].startswith(CONTRADICTS):
+                    for n in together(k, new, common):
+                        verdicts.setdefault(n, f'placed with grid {k}, whose place {verdicts[k]}')
+        return verdicts[k]
+
+    while True:
+        confirmed = {k for k in first if not verdict(k)} if settled else \
+            confirmed_now(new, standing, transforms, corners, common, first, memory, names, verdict)
+        # a grid found contradicting the merge also refuses the new grids placed with it: again without those
+        # confirmed before it was judged (each grid is judged once: this ends)
+        if not any(verdicts.get(k) for k in confirmed):
+            break
     for k in new:
         held = Held(transforms[k], first.get(k, {names[m]: area for m, area in common[k].items()}))
         if k in confirmed:

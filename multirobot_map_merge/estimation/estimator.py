@@ -36,6 +36,7 @@ from .relax import FINAL, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
 from .tracking import move_verdict, track
 from .union import footprint, known_corners
+from .uniqueness import StandingCheck
 from .workers import ParallelMatcher
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
@@ -199,11 +200,13 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     contents = [content_key(g) if g is not None else None for g in grids] if previous is not None else None
     inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
     settled = inputs is not None and all(memory.latest.get(n) == c for n, c in inputs)
+    cache = cache or FeatureCache()
     result = _estimate_kept(grids, settings, cache, preferred_reference, previous, progress, memory, names,
                             contents, inputs, settled)
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
-                               static_for(memory, settled, now))
+                               static_for(memory, settled, now),
+                               StandingCheck(grids, settings, cache, working_resolution(grids, settings)))
         keep_standing(result, published, preferred_reference, memory)
         remember_shown(result.transforms, result.reference, memory, names)
     result.pairs = unique_pairs(result.pairs)

@@ -12,7 +12,7 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, List, Optional
+from typing import TYPE_CHECKING, Callable, List, Optional
 
 import numpy as np
 
@@ -96,9 +96,10 @@ def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) 
 
 
 def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: EstimationSettings,
-               keep: int = 40) -> Optional[Placement]:
+               keep: int = 40, enough: Optional[Callable[[Placement], bool]] = None) -> Optional[Placement]:
     """Another place for grid i on grid j that passes the rules of `plausible` (not the precision rule), however
-    much smaller its common area, searched by correlation away from `best` (`keep` candidates refined).
+    much smaller its common area, searched by correlation away from `best` (`keep` candidates refined); with
+    `enough`, the first such place that it also finds enough.
 
     Not an acceptance rule: small consistent placements are common (a corner of one map fitting a corner of the
     other), and on the saved maps of 199 live-demo runs such a rival, with 100-177 agreeing wall cells, existed
@@ -112,7 +113,7 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
         if quick_agreement(pi, pj, model, s, rng) < s.screen_min_agreement:
             continue
         c = verify(pi, pj, icp(pi, pj, model, s, rng), s)
-        if plausible(c, s) and distinct(c.transform, best.transform, pi, s):
+        if plausible(c, s) and distinct(c.transform, best.transform, pi, s) and (enough is None or enough(c)):
             return c
     return None
 
