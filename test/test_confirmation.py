@@ -28,6 +28,11 @@ def _estimate(pipeline, grids, now=None):
                              names=NAMES, now=now)
 
 
+def _free_strip(x0, width_m, height_m):
+    """A grid of free cells only, in the merged frame itself, from x0 along x."""
+    return Grid(np.zeros((int(round(height_m / 0.05)), int(round(width_m / 0.05))), np.int8), 0.05, (x0, 0.0, 0.0))
+
+
 def _placed(result):
     return {NAMES[k] for k, t in enumerate(result.transforms) if t is not None}
 
@@ -264,23 +269,20 @@ def test_held_grids_grown_together_do_not_confirm_each_other_but_a_confirmed_one
     """r stands; b (held) meets r, c (held) meets only b. When b and c grow into each other, and b not towards r,
     neither is confirmed: their place relative to r has met nothing new. When b's common area with r grows too, b
     is confirmed, and c with it, in the same estimation."""
-    def free(x0, width_m, height_m):   # all free cells, in the merged frame itself
-        return Grid(np.zeros((int(round(height_m / 0.05)), int(round(width_m / 0.05))), np.int8), 0.05,
-                    (x0, 0.0, 0.0))
-
     names = ['r', 'b', 'c']
     published = [np.eye(3), None, None]
-    r = free(0.0, 4.0, 4.0)
+    r = _free_strip(0.0, 4.0, 4.0)
 
     def hold(b, c, memory):
         transforms = [np.eye(3)] * 3
         return hold_new(transforms, 0, [], published, memory, names, [r, b, c], False), transforms
 
-    for b_now, placed in ((free(2.0, 6.0, 2.0), [True, False, False]),    # b grew away from r, into c
-                          (free(0.0, 8.0, 2.0), [True, True, True])):     # b grew towards r too
+    for b_now, placed in ((_free_strip(2.0, 6.0, 2.0), [True, False, False]),    # b grew away from r, into c
+                          (_free_strip(0.0, 8.0, 2.0), [True, True, True])):     # b grew towards r too
         memory = EstimationMemory()
-        assert hold(free(2.0, 2.0, 2.0), free(6.0, 2.0, 2.0), memory)[0] == 2   # b shares 4 m2 with r, c none
-        held, transforms = hold(b_now, free(5.0, 3.0, 4.0), memory)
+        # b shares 4 m2 with r, c none
+        assert hold(_free_strip(2.0, 2.0, 2.0), _free_strip(6.0, 2.0, 2.0), memory)[0] == 2
+        held, transforms = hold(b_now, _free_strip(5.0, 3.0, 4.0), memory)
         assert [t is not None for t in transforms] == placed
 
 
@@ -313,13 +315,9 @@ def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_ot
     now); nothing against either confirms both."""
     from multirobot_map_merge.estimation.uniqueness import CONTRADICTS
 
-    def free(x0, width_m, height_m):   # all free cells, in the merged frame itself
-        return Grid(np.zeros((int(round(height_m / 0.05)), int(round(width_m / 0.05))), np.int8), 0.05,
-                    (x0, 0.0, 0.0))
-
     names = ['r', 'b', 'c']
     published = [np.eye(3), None, None]
-    r = free(0.0, 4.0, 4.0)
+    r = _free_strip(0.0, 4.0, 4.0)
     cases = (({1: f'{CONTRADICTS}: agreement 0.80', 2: ''}, [True, False, False]),
              ({1: '', 2: 'another place on the merge that stands agrees 1.00'}, [True, True, False]),
              ({1: None, 2: None}, [True, False, False]),
@@ -334,9 +332,9 @@ def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_ot
 
         memory = EstimationMemory()
         assert hold_new([np.eye(3)] * 3, 0, [], published, memory, names,
-                        [r, free(2.0, 2.0, 2.0), free(6.0, 2.0, 2.0)], False, check) == 2
+                        [r, _free_strip(2.0, 2.0, 2.0), _free_strip(6.0, 2.0, 2.0)], False, check) == 2
         assert judged == []   # nothing confirmed yet: nothing judged
         transforms = [np.eye(3)] * 3
-        hold_new(transforms, 0, [], published, memory, names, [r, free(0.0, 8.0, 2.0), free(5.0, 3.0, 4.0)], False,
-                 check)
+        grown = [r, _free_strip(0.0, 8.0, 2.0), _free_strip(5.0, 3.0, 4.0)]
+        hold_new(transforms, 0, [], published, memory, names, grown, False, check)
         assert [t is not None for t in transforms] == placed, verdicts
