@@ -78,33 +78,30 @@ def _rooms_world(distinct_last: bool):
     return shapes
 
 
-def _rooms_grid(origin, size_m, shapes, known_box) -> Grid:
-    """A grid with the shapes drawn where they fall inside known_box (metres), the rest unknown."""
+def _rooms_grid(origin, size_m, layers) -> Grid:
+    """A grid with each layer's shapes drawn where they fall inside its known box (metres), the rest unknown."""
     data = np.full((int(size_m[1] / RES), int(size_m[0] / RES)), -1, np.int8)
-    for box, value in shapes:
-        clipped = (max(box[0], known_box[0]), max(box[1], known_box[1]),
-                   min(box[2], known_box[2]), min(box[3], known_box[3]))
-        if clipped[2] > clipped[0] and clipped[3] > clipped[1]:
-            _draw(data, origin, clipped, value)
+    for shapes, known_box in layers:
+        for box, value in shapes:
+            clipped = (max(box[0], known_box[0]), max(box[1], known_box[1]),
+                       min(box[2], known_box[2]), min(box[3], known_box[3]))
+            if clipped[2] > clipped[0] and clipped[3] > clipped[1]:
+                _draw(data, origin, clipped, value)
     return Grid(data, RES, (origin[0], origin[1], 0.0), 'map')
 
 
 @pytest.mark.parametrize('distinct_last', [False, True])
 def test_a_map_whose_part_on_the_merge_repeats_there_is_refused(distinct_last):
     """The merge knows the four rooms and the corridor above the first three; the robot saw the last room and a
-    pillar in the corridor above it, which the merge has not seen. Placed in the last room it agrees; in any other
-    its pillar would stand on the merge's open corridor, so no other place fits the whole map. But the part that
-    the placement rests on, the room, fits the three others as well: nothing in the merge singles out this place
-    (the robot's room could be a fifth one further on). Refused, unless the last room holds a wall of its own."""
+    wall across the corridor above it, which the merge has not seen. Placed in the last room it agrees; in any other
+    that wall would stand on the merge's open corridor, so no other place fits the whole map. But the part that the
+    placement rests on, the room, fits the three others as well: nothing in the merge singles out this place (the
+    robot's room could be a fifth one further on). Refused, unless the last room holds a wall of its own."""
     shapes = _rooms_world(distinct_last)
     corridor = [((0.0, 8.0, 32.0, 14.0), 0), ((0.0, 13.9, 32.0, 14.0), 100), ((26.0, 10.8, 30.0, 11.0), 100)]
-    union = _rooms_grid((-1.0, -1.0), (34.0, 16.0), shapes + corridor, (-1.0, -1.0, 24.0, 15.0))
-    union.data[union.data.shape[0] - 20:, :] = -1   # nothing above the corridor's wall
-    _draw(union.data, (-1.0, -1.0), (24.0, -1.0, 33.0, 8.0), -1)
-    for box, value in shapes:                        # the last room, known to the merge too
-        if box[0] >= 24.0:
-            _draw(union.data, (-1.0, -1.0), box, value)
-    robot = _rooms_grid((23.0, -1.0), (10.0, 16.0), shapes + corridor, (23.9, -1.0, 33.0, 14.1))
+    union = _rooms_grid((-1.0, -1.0), (34.0, 16.0), [(shapes, (-1.0, -1.0, 33.0, 15.0)),
+                                                     (corridor, (-1.0, -1.0, 24.0, 15.0))])
+    robot = _rooms_grid((23.0, -1.0), (10.0, 16.0), [(shapes + corridor, (23.9, -1.0, 33.0, 14.1))])
     check = StandingCheck([union, robot], EstimationSettings(), FeatureCache(), RES)
     why = check(1, np.eye(3), {0: np.eye(3)})
     if distinct_last:

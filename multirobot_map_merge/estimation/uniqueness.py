@@ -101,14 +101,14 @@ class StandingCheck:
         known = grid.data >= 0
         if np.count_nonzero(on & known) >= WHOLE_SHARE * np.count_nonzero(known):
             return ''
-        part = prepare(Grid(np.where(on, grid.data, -1), grid.resolution, grid.origin, grid.frame_id), self.res,
+        shared = prepare(Grid(np.where(on, grid.data, -1), grid.resolution, grid.origin, grid.frame_id), self.res,
                        self.s.feature, lazy=True)
-        if part is None:
+        if shared is None:
             return ''
-        best = verify(part, union, tf.inverse(union.px_to_map) @ transform @ part.px_to_map, self.s)
-        rival = find_rival(part, union, best, self.s, enough=lambda c: as_good(c, best, self.s))
+        best = verify(shared, union, tf.inverse(union.px_to_map) @ transform @ shared.px_to_map, self.s)
+        rival = find_rival(shared, union, best, self.s, enough=lambda c: as_good(c, best, self.s))
         if rival is None:
             return ''
         return (f'the part of it on the merge that stands fits another place as well: agreement '
-                f'{rival.agreement:.2f}, support {rival.support}, {rival.overlap_m2:.1f} m2 (here {best.agreement:.2f}, '
-                f'{best.support}, {best.overlap_m2:.1f} m2)')
+                f'{rival.agreement:.2f}, support {rival.support}, {rival.overlap_m2:.1f} m2 '
+                f'(here {best.agreement:.2f}, {best.support}, {best.overlap_m2:.1f} m2)')
