@@ -12,7 +12,9 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import threading
 import time
+import types
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -195,6 +197,31 @@ def test_the_files_of_an_estimation_are_removed(repo_root):
         assert folder is not None and len(os.listdir(folder)) == len(grids)
         assert os.path.basename(folder).startswith(f'{workers.FOLDER_PREFIX}{os.getpid()}_')
     assert not os.path.exists(folder)
+
+
+def test_an_estimation_that_ends_while_a_grid_is_written_leaves_no_files(repo_root, monkeypatch):
+    """merge_maps ended by SIGTERM while the estimation's threads wrote the grids of a batch: its folder was removed
+    under a file being written, and a file created meanwhile kept the folder in /dev/shm. The end waits for the
+    writes under way, and then removes the folder."""
+    grid = prepare(_maps(repo_root)[0], 0.05, 'akaze')
+    writing, folder_there = threading.Event(), []
+
+    def slow_dump(obj, f, protocol=None):
+        writing.set()
+        time.sleep(0.5)
+        pickle.dump(obj, f, protocol=protocol)
+        folder_there.append(os.path.isdir(os.path.dirname(f.name)))
+    monkeypatch.setattr(workers, 'pickle', types.SimpleNamespace(dump=slow_dump, load=pickle.load,
+                                                                 HIGHEST_PROTOCOL=pickle.HIGHEST_PROTOCOL))
+    with ThreadPoolExecutor(1) as pool:
+        matcher = workers.ParallelMatcher(EstimationSettings(processes=False), pool)
+        sent = pool.submit(matcher._path, grid)
+        assert writing.wait(10)
+        matcher.__exit__(None, None, None)   # the estimation ends, as an exception in its main thread ends it
+        folder = matcher._folder
+        sent.result(timeout=10)
+    assert folder_there == [True]
+    assert folder is not None and not os.path.exists(folder)
 
 
 def test_the_folders_of_processes_that_have_gone_are_swept_once_untouched_for_a_while(tmp_path, monkeypatch):

@@ -61,6 +61,7 @@ FILES_KEPT_BYTES = 256 * 2 ** 20
 SHARED_FOLDER = '/dev/shm'
 SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to go there: those kept and a batch's
 FOLDER_PREFIX = 'map_merge_'   # an estimation's folder: map_merge_<pid of the estimating process>_<random>
+WRITE_WAIT_S = 10.0   # at the end of an estimation, for grids being written to its folder
 STALE_S = 600.0   # a folder of a process that has gone, untouched this long, is removed by the next estimation
 
 
@@ -295,7 +296,9 @@ class ParallelMatcher:
         # id of a grid sent -> (it, its file, the file's size), least recently used first
         self._files: 'OrderedDict[int, Tuple[PreparedGrid, str, int]]' = OrderedDict()
         self._bytes = 0
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
+        self._writing = 0     # files being written on the estimation's threads, outside the lock
+        self._closed = False  # the estimation has ended: no file is written any more
         self._written = 0
         self._worker_settings = settings.replace(threads=1)   # a worker's search runs on its own core
         self.stats = BatchStats()
@@ -306,6 +309,11 @@ class ParallelMatcher:
     def __exit__(self, *exc) -> bool:
         if self.stats.batches:
             log.debug('%s', self.stats.summary(self.s.threads))
+        with self._lock:
+            # an estimation ended by an exception (SIGTERM, merge_maps) can leave threads writing grids: a file
+            # created while the folder was removed kept it in /dev/shm (a fresh-clone test run)
+            self._closed = True
+            self._lock.wait_for(lambda: self._writing == 0, timeout=WRITE_WAIT_S)
         if self._remove_folder is not None:
             self._remove_folder()
         self._files.clear()
@@ -365,16 +373,24 @@ class ParallelMatcher:
             if sent is not None and sent[0] is grid:
                 self._files.move_to_end(id(grid))
                 return sent[1]
+            if self._closed:
+                raise RuntimeError('the estimation has ended: no more grids are sent to its workers')
             if self._folder is None:
                 folder = _files_folder()
                 _sweep_stale(folder)
                 self._folder = tempfile.mkdtemp(prefix=f'{FOLDER_PREFIX}{os.getpid()}_', dir=folder)
                 self._remove_folder = weakref.finalize(self, shutil.rmtree, self._folder, ignore_errors=True)
             self._written += 1
+            self._writing += 1
             path = os.path.join(self._folder, f'{self._written}.pickle')
-        with open(path, 'wb') as f:
-            pickle.dump(grid, f, protocol=pickle.HIGHEST_PROTOCOL)
-            size = f.tell()
+        try:
+            with open(path, 'wb') as f:
+                pickle.dump(grid, f, protocol=pickle.HIGHEST_PROTOCOL)
+                size = f.tell()
+        finally:
+            with self._lock:
+                self._writing -= 1
+                self._lock.notify_all()
         with self._lock:
             # kept with its file: its id is not reused while the file is
             self._files[id(grid)] = (grid, path, size)
