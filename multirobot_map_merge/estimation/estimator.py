@@ -32,7 +32,7 @@ from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .relax import FINAL, overlapping_pairs, relax, walls_fitting
+from .relax import FINAL, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
 from .tracking import move_verdict, track
 from .union import footprint, known_corners
@@ -156,18 +156,23 @@ def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group
 
 
 def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
-                s: EstimationSettings) -> None:
+                s: EstimationSettings, limits: Limits = FINAL) -> None:
     """Refine the group's placements together, its seed fixed (relax.py): each map was placed onto the union of
     those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
     members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
     seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025
     -> 0.011 degrees), further and longer than tracking's relaxation (relax.FINAL: mall36 seed 3, a group of nine
     0.6 degrees off placed right). The placements stay when the walls fit no better or a map would move more than
-    FINAL.max_move_m."""
+    FINAL.max_move_m.
+
+    The node relaxes with tracking's `limits` a group that outgrew the tracked one: the merge moves to it in the
+    estimation that confirms its placements, which were held in its own frame and never tracked (the dev scenario's
+    30 maps replayed as they grow: a group of 17 shown with two maps 0.43 and 0.53 degrees and 3.6 and 4.6 cells
+    off; relaxed there, none off, in 0.04-0.33 s)."""
     if len(group.members) < 3:
         return   # a pair is refined together by its own match
     moved = relax(dict(group.members), group.seed, grids, prepared, dict(group.union.footprints), s.min_overlap_m2,
-                  s.seed, FINAL)
+                  s.seed, limits)
     if moved is not None:
         group.move(moved)
 
@@ -325,6 +330,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             if kept:
                 groups.append(grower.tracked_group(preferred_reference, kept, checks))
         tracked = len(groups[0].members) - 1 if groups else 0
+        tracked_group = groups[0] if tracked else None
         placed = {k for g in groups for k in g.members}
         unplaced = sorted((k for k in present if k not in placed), key=lambda k: -prepared[k].known_pixels)
         # descriptors first (cheap): every grid joins a group or seeds one
@@ -358,6 +364,10 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings)
+        elif tracked and chosen is not tracked_group:
+            # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
+            # never tracked, and are published once confirmed (confirmation.keep_standing)
+            relax_group(chosen, usable, prepared, settings, Limits())
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

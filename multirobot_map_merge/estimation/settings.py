@@ -29,7 +29,8 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
     # (merge_maps); the node turns it off (see ros/params.py)
     evict: bool = True
     # the placements of an estimation afresh refined together at its end (relax.py, relax.FINAL): for one
-    # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead
+    # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead, and
+    # a group that outgrew the tracked one is refined with tracking's limits (estimator.relax_group)
     relax_final: bool = True
     # the grids left out of an estimation afresh searched once more onto the merge (growth.search_left_out): for one
     # estimation of final maps; in the node tracking checks every placement again in the estimations after
