@@ -45,7 +45,11 @@ print(json.dumps({{'wall': time.perf_counter() - wall, 'cpu': time.process_time(
 
 def run_once(root: Path, maps: Path, threads: int) -> Dict[str, float]:
     code = ONE_ESTIMATION.format(root=str(root), maps=str(maps), threads=threads)
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
+    # from `root`: the server of the worker processes (workers.py) imports the package from its working folder
+    # first (Python 3.11's forkserver ignores this process's sys.path); from the working tree, the base's matches
+    # ran the working tree's code
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True,
+                         cwd=str(root)).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
@@ -67,7 +71,7 @@ def main(argv: List[str] = None) -> int:
     where.add_argument('--large36', nargs='?', const=REPO / 'out' / 'bench', type=Path, metavar='CACHE',
                        help='the generated 36-map scenario in CACHE/large36 (default out/bench)')
     args = ap.parse_args(argv)
-    maps = args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)
+    maps = (args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)).resolve()
     if not sorted(maps.glob('map_*.yaml')):
         print(f'bench_ab: no map_*.yaml in {maps}' + (' (run bench_merge.py --large36 first)'
                                                       if args.large36 is not None else ''), file=sys.stderr)
