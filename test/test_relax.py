@@ -130,10 +130,9 @@ def test_the_node_relaxes_a_group_that_outgrew_the_tracked_one_with_trackings_li
     """With the node's settings (relax_final off) the group tracking kept is relaxed by tracking alone, and so is a
     group estimated with nothing kept (its placements are held, and tracked after); but a group that outgrew the
     tracked one, whose placements were held in its own frame and never tracked, is relaxed with tracking's limits
-    before the merge moves to it (the dev scenario replayed as it grows showed such a group with two maps 0.43 and
-    0.53 degrees off until tracking refined them an estimation later)."""
+    before the merge moves to it (why: estimator.relax_group)."""
     from multirobot_map_merge.estimation import estimator
-    from multirobot_map_merge.estimation.relax import Limits
+    from multirobot_map_merge.estimation.relax import TRACKING
     from multirobot_map_merge.pipeline import MergingPipeline
     samples = repo_root / 'data' / 'samples'
     pair = [load_map(str(samples / 'three_robots' / f'map_0{i}.yaml')) for i in (0, 1)]
@@ -156,7 +155,7 @@ def test_the_node_relaxes_a_group_that_outgrew_the_tracked_one_with_trackings_li
     assert estimate(pair + [None] * 4).tracked == 1 and relaxed == []
     outgrown = estimate(pair + four)
     assert outgrown.reference == 0 and outgrown.held == 3
-    assert relaxed == [([2, 3, 4, 5], Limits())]
+    assert relaxed == [([2, 3, 4, 5], TRACKING)]
 
 
 def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_estimation(repo_root):
@@ -165,7 +164,7 @@ def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_esti
     moves up to 0.2 m) leaves them, while the relaxation at the end of an estimation afresh (relax.FINAL: more
     partners, more iterations, moves up to 0.5 m at the corners of such large maps) brings every map within 0.1
     degrees and 10 cm."""
-    from multirobot_map_merge.estimation.relax import FINAL, Limits
+    from multirobot_map_merge.estimation.relax import FINAL, TRACKING
     _, names, grids, ref, true = _demo12(repo_root)
     group = [names.index(n) for n in ('robot_10', 'robot_6', 'robot_7', 'robot_8')]
     boxes = [footprint(grids[k], true[k]) for k in group]
@@ -177,7 +176,7 @@ def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_esti
 
     def worst(out):
         return max(_error(grids[k], out[k], true[k])[0] for k in range(len(names))) if out is not None else 0.6
-    assert worst(relax(placed, ref, grids, prepared, footprints, 4.0, 0, Limits())) > 0.15
+    assert worst(relax(placed, ref, grids, prepared, footprints, 4.0, 0, TRACKING)) > 0.15
     out = relax(placed, ref, grids, prepared, footprints, 4.0, 0, FINAL)
     assert out is not None
     for k in range(len(names)):

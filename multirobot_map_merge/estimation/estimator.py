@@ -32,7 +32,7 @@ from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress
 from .memory import EstimationMemory
 from .pair import PairMatch
-from .relax import FINAL, Limits, overlapping_pairs, relax, walls_fitting
+from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
 from .tracking import move_verdict, track
 from .union import footprint, known_corners
@@ -367,7 +367,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         elif tracked and chosen is not tracked_group:
             # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
             # never tracked, and are published once confirmed (confirmation.keep_standing)
-            relax_group(chosen, usable, prepared, settings, Limits())
+            relax_group(chosen, usable, prepared, settings, TRACKING)
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

@@ -50,6 +50,7 @@ class Limits(NamedTuple):
     max_partners: int = MAX_PARTNERS
 
 
+TRACKING = Limits()   # a live fleet's placements, kept from one estimation to the next (tracking.relax_placed)
 # at the end of one estimation of final maps (estimator.relax_group): a group that joined a few tenths of a degree
 # turned moves further (maze36 of the generated buildings, seed 2: 0.26 m put four maps 3.3-3.9 cells off right;
 # groups of 4-6 of the demo's final maps turned 0.6 degrees: 0.29-0.42 m), and a group of 9 that joined 0.6 degrees
@@ -275,7 +276,7 @@ class _Directions:
 
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box],
-          min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = Limits()) -> Optional[Dict[int, np.ndarray]]:
+          min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = TRACKING) -> Optional[Dict[int, np.ndarray]]:
     """The placements (grid -> metric transform into the reference's frame) refined together, the reference fixed;
     None when they stay as they are (no pair to refine on, no better fit, or a move beyond limits.max_move_m at the
     corners of a grid's known part). Pairs whose footprints share less than `min_overlap_m2` (the common area a match
