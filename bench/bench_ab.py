@@ -5,7 +5,8 @@
 
 Runs one estimation per process, alternating the base revision (default HEAD, checked out into a temporary git
 worktree that is removed at the end) and the working tree, for --rounds rounds; prints per side the median and
-lowest wall time, the median CPU time and the maps placed, and the ratio of the medians. The maps default to the
+lowest wall time, the median CPU time of the estimating process and of it with its worker processes, the maps
+placed, and the ratio of the medians. The maps default to the
 shared 30-map scenario; --large36 uses the generated 36-map one (bench_merge.py --large36 makes it).
 
 Why interleaved: on this 2-core machine the same code ran 4.9-7.3 s within one hour, CPU time included, so two
@@ -30,21 +31,25 @@ DEFAULT_MAPS = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_secti
 
 # one estimation of every map_*.yaml in a folder, with the package of `root`; prints wall, CPU and placed as JSON
 ONE_ESTIMATION = '''
-import glob, json, sys, time
+import glob, json, os, sys, time
 sys.path.insert(0, {root!r})
+sys.path.insert(0, {bench!r})
+from machine import proc_cpu_seconds
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.estimator import estimate
 from multirobot_map_merge.estimation.settings import EstimationSettings
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
-wall, cpu = time.perf_counter(), time.process_time()
+wall, cpu, tree = time.perf_counter(), time.process_time(), proc_cpu_seconds(os.getpid())
 found = estimate(grids, EstimationSettings(threads={threads}))
 print(json.dumps({{'wall': time.perf_counter() - wall, 'cpu': time.process_time() - cpu,
+                  'tree': proc_cpu_seconds(os.getpid()) - tree,
                   'placed': sum(t is not None for t in found.transforms)}}))
 '''
 
 
 def run_once(root: Path, maps: Path, threads: int) -> Dict[str, float]:
-    code = ONE_ESTIMATION.format(root=str(root), maps=str(maps), threads=threads)
+    code = ONE_ESTIMATION.format(root=str(root), bench=str(Path(__file__).resolve().parent), maps=str(maps),
+                                 threads=threads)
     # from `root`: the server of the worker processes (workers.py) imports the package from its working folder
     # first (Python 3.11's forkserver ignores this process's sys.path); from the working tree, the base's matches
     # ran the working tree's code
@@ -57,7 +62,8 @@ def summary(name: str, runs: List[Dict[str, float]]) -> str:
     walls = [r['wall'] for r in runs]
     placed = sorted({int(r['placed']) for r in runs})
     return (f'| {name} | {statistics.median(walls):.2f} | {min(walls):.2f} | '
-            f'{statistics.median(r["cpu"] for r in runs):.2f} | {"/".join(map(str, placed))} | '
+            f'{statistics.median(r["cpu"] for r in runs):.2f} | {statistics.median(r["tree"] for r in runs):.2f} | '
+            f'{"/".join(map(str, placed))} | '
             f'{" ".join(f"{w:.2f}" for w in walls)} |')
 
 
@@ -100,8 +106,8 @@ def main(argv: List[str] = None) -> int:
     print(f'\none estimation of {len(sorted(maps.glob("map_*.yaml")))} maps ({maps.name}), {args.threads} threads, '
           f'{args.rounds} rounds alternating; base = {args.base} ({base_rev.stdout.strip()}), work = working tree; '
           f'{machine.describe()}\n')
-    print('| side | wall median (s) | wall lowest (s) | CPU median (s) | placed | walls (s) |')
-    print('|---|---|---|---|---|---|')
+    print('| side | wall median (s) | wall lowest (s) | CPU median (s) | with its workers (s) | placed | walls (s) |')
+    print('|---|---|---|---|---|---|---|')
     print(summary('base', runs['base']))
     print(summary('work', runs['work']))
     ratio = statistics.median(r['wall'] for r in runs['work']) / statistics.median(r['wall'] for r in runs['base'])

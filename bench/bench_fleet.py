@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from bench_node import proc_cpu_seconds   # same directory
+from machine import proc_cpu_seconds   # same directory
 
 REPO = Path(__file__).resolve().parents[1]
 

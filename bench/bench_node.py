@@ -52,11 +52,11 @@ from typing import Dict, List, Optional
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from multirobot_map_merge import transforms as tf  # noqa: E402
+from machine import proc_cpu_seconds, process_tree  # noqa: E402
 from reveal import TILE, reveal_order, revealed, score_placements, scorer, tiles_due, wrong_of  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
 TARGET_HZ, TARGET_CORES = 4.0, 1.0
-CLK_TCK = os.sysconf('SC_CLK_TCK')
 
 
 # ---------------------------------------------------------------------------------------------- publisher process
@@ -171,38 +171,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
-
-
-def _stat(pid: int) -> List[str]:
-    return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-
-
-def process_tree(pid: int) -> List[int]:
-    """The process and every process under it (the estimation's worker processes and their server)."""
-    children: Dict[int, List[int]] = {}
-    for entry in Path('/proc').iterdir():
-        if entry.name.isdigit():
-            try:
-                children.setdefault(int(_stat(int(entry.name))[1]), []).append(int(entry.name))   # ppid
-            except (OSError, IndexError, ValueError):
-                pass   # ended meanwhile
-    tree, todo = [], [pid]
-    while todo:
-        tree.append(todo.pop())
-        todo += children.get(tree[-1], [])
-    return tree
-
-
-def proc_cpu_seconds(pid: int) -> float:
-    """CPU of the process and of the processes under it, the children they have waited for included."""
-    ticks = 0
-    for p in process_tree(pid):
-        try:
-            fields = _stat(p)
-        except OSError:
-            continue   # ended meanwhile
-        ticks += sum(int(f) for f in fields[11:15])   # utime, stime, cutime, cstime (fields 14-17 of stat)
-    return ticks / CLK_TCK
 
 
 def proc_memory_mib(pid: int) -> Dict[str, float]:
