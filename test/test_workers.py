@@ -298,6 +298,29 @@ def test_no_worker_outlives_a_killed_estimating_process(repo_root):
     assert not any(_alive(p) for p in pids)
 
 
+WHICH_PACKAGE = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from multirobot_map_merge.estimation import workers
+executor = workers._POOL.get(2)
+found = executor.submit(eval, '__import__("multirobot_map_merge").__file__').result(timeout=60)
+workers._POOL.shutdown()
+print(json.dumps(found))
+"""
+
+
+def test_the_workers_run_the_package_of_the_estimating_process_not_a_copy_in_its_working_folder(repo_root, tmp_path):
+    """A user who runs merge_maps from a folder that holds another copy of the package (a source checkout of another
+    version): the workers import the estimating process's copy, as the estimating process does."""
+    copy = tmp_path / 'multirobot_map_merge'
+    copy.mkdir()
+    (copy / '__init__.py').write_text('')
+    out = subprocess.run([sys.executable, '-c', WHICH_PACKAGE, str(repo_root)], cwd=str(tmp_path),
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == str(repo_root / 'multirobot_map_merge' / '__init__.py')
+
+
 def _as_in_a_terminal():
     """A child started as from a terminal: SIGINT at its default whatever this process inherited (a suite started in
     the background by a shell ignores SIGINT, and so would the child's Python, never raising KeyboardInterrupt)."""

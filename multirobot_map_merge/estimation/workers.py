@@ -63,6 +63,11 @@ SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to g
 FOLDER_PREFIX = 'map_merge_'   # an estimation's folder: map_merge_<pid of the estimating process>_<random>
 WRITE_WAIT_S = 10.0   # at the end of an estimation, for grids being written to its folder
 STALE_S = 600.0   # a folder of a process that has gone, untouched this long, is removed by the next estimation
+# imported once by the workers' server, before it forks them: not this package, which the server (Python 3.11)
+# imports from its working folder first, not by this process's sys.path: a copy of the package there (the folder
+# merge_maps is run from) ran in the workers instead of this one. A worker imports the package by this process's
+# sys.path when it starts (multiprocessing passes it on).
+SERVER_PRELOAD = ['numpy', 'cv2']
 
 
 @dataclass
@@ -196,7 +201,7 @@ class _Pool:
             if self._executor is None or self._workers != workers:
                 self._stop(wait=False)
                 context = multiprocessing.get_context('forkserver')
-                context.set_forkserver_preload([__name__])
+                context.set_forkserver_preload(SERVER_PRELOAD)
                 self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                                      initializer=_start_worker, initargs=(os.getpid(),))
                 self._workers = workers
