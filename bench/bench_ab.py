@@ -50,9 +50,8 @@ print(json.dumps({{'wall': time.perf_counter() - wall, 'cpu': time.process_time(
 def run_once(root: Path, maps: Path, threads: int) -> Dict[str, float]:
     code = ONE_ESTIMATION.format(root=str(root), bench=str(Path(__file__).resolve().parent), maps=str(maps),
                                  threads=threads)
-    # from `root`: the server of the worker processes (workers.py) imports the package from its working folder
-    # first (Python 3.11's forkserver ignores this process's sys.path); from the working tree, the base's matches
-    # ran the working tree's code
+    # from `root`: the worker processes of a revision before 38a0517 import the package from their working folder
+    # (workers.SERVER_PRELOAD), and a base run from the working tree ran the working tree's matches
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True,
                          cwd=str(root)).stdout
     return json.loads(out.strip().splitlines()[-1])
