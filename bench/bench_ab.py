@@ -6,8 +6,8 @@
 Runs one estimation per process, alternating the base revision (default HEAD, checked out into a temporary git
 worktree that is removed at the end) and the working tree, for --rounds rounds; prints per side the median and
 lowest wall time, the median CPU time of the estimating process and of it with its worker processes, the maps
-placed, and the ratio of the medians. The maps default to the
-shared 30-map scenario; --large36 uses the generated 36-map one (bench_merge.py --large36 makes it).
+placed, and the ratio of the medians. The maps default to the shared 30-map scenario; --large36 uses the generated
+36-map one (bench_merge.py --large36 makes it).
 
 Why interleaved: on this 2-core machine the same code ran 4.9-7.3 s within one hour, CPU time included, so two
 figures taken minutes apart cannot show a change of less than about a tenth; alternating one process each puts

@@ -51,6 +51,7 @@ class Limits(NamedTuple):
 
 
 TRACKING = Limits()   # a live fleet's placements, kept from one estimation to the next (tracking.relax_placed)
+
 # at the end of one estimation of final maps (estimator.relax_group): a group that joined a few tenths of a degree
 # turned moves further (maze36 of the generated buildings, seed 2: 0.26 m put four maps 3.3-3.9 cells off right;
 # groups of 4-6 of the demo's final maps turned 0.6 degrees: 0.29-0.42 m), and a group of 9 that joined 0.6 degrees

@@ -63,10 +63,9 @@ SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to g
 FOLDER_PREFIX = 'map_merge_'   # an estimation's folder: map_merge_<pid of the estimating process>_<random>
 WRITE_WAIT_S = 10.0   # at the end of an estimation, for grids being written to its folder
 STALE_S = 600.0   # a folder of a process that has gone, untouched this long, is removed by the next estimation
-# imported once by the workers' server, before it forks them: not this package, which the server (Python 3.11)
-# imports from its working folder first, not by this process's sys.path: a copy of the package there (the folder
-# merge_maps is run from) ran in the workers instead of this one. A worker imports the package by this process's
-# sys.path when it starts (multiprocessing passes it on).
+# what the workers' server imports once, before it forks them. Not this package: Python 3.11's server looks in its
+# working folder first, not in this process's sys.path, and a copy of the package in the folder merge_maps ran from
+# ran in the workers. Each worker imports the package itself, by this process's sys.path (multiprocessing passes it).
 SERVER_PRELOAD = ['numpy', 'cv2']
 
 
