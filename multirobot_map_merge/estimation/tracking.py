@@ -28,7 +28,7 @@ from .refine import icp
 from .relax import relax
 from .settings import EstimationSettings
 from .union import Box, compose_near, footprint, most_overlapping, overlap_area
-from .verify import pair_confidence, plausible, refusal, verify
+from .verify import IMPRECISE, pair_confidence, plausible, refusal, verify
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.tracking')
 
@@ -49,6 +49,7 @@ class Check:
     k: int
     transform: Optional[np.ndarray]   # the (refined) metric placement, None when it no longer holds
     match: PairMatch                  # figures against the union of the others (j: the most overlapping one)
+    imprecise: bool = False           # refused for precision alone: every other rule of a pair passed
 
 
 class Verdict(NamedTuple):
@@ -107,7 +108,7 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
     match.best = best
     if reason:
         match.reason = f'{failing}: {reason}'
-        return Check(k, None, match)
+        return Check(k, None, match, imprecise=reason.startswith(IMPRECISE))
     metric = target.px_to_map @ best.transform @ tf.inverse(pk.px_to_map)
     match.accepted = True
     match.matches, match.inliers = best.support + best.conflicts, best.support
