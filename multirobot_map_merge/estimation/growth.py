@@ -377,8 +377,9 @@ class Grower:
         """Judge the grids a search placed again, as they are, against the other members near them (tracking's
         check without its refinement): a search takes the best place on the union as it was then, and the members
         that joined since can show that it slid along a corridor (36 generated maps: one map placed 0.34 m off onto
-        a union of 16, which the final union of 25 contradicts, agreement 0.89). One that fails leaves the group:
-        the one that agrees least first, then those that failed are judged again without it, as tracking does."""
+        a union of 16, which the final union of 25 contradicts, agreement 0.89). One that fails, for a reason other
+        than precision alone, leaves the group: the one that agrees least first, then those that failed are judged
+        again without it, as tracking does."""
         todo = [k for k in group.members if k in self.searched and k not in (group.seed, self.reference)]
         for _ in range(MAX_PASSES):
             if not todo:
