@@ -24,6 +24,14 @@ def _sample(repo_root, name):
     return grids, [tf.rigid(*m['pose']) for m in truth['maps']]
 
 
+def _demo_late_group(repo_root):
+    """(names, grids, true poses of their map frames) of test/data/demo_late_group, robot_1 to robot_6 in order."""
+    folder = repo_root / 'test' / 'data' / 'demo_late_group'
+    starts = json.loads((folder / 'start_poses.json').read_text())
+    names = sorted(starts)
+    return names, [load_map(str(folder / f'{n}.yaml')) for n in names], [tf.rigid(*starts[n]) for n in names]
+
+
 def _error(estimated: np.ndarray, poses, k: int, ref: int):
     """(degrees, metres) between the estimated placement of map k and the truth, relative to map ref."""
     d = tf.inverse(tf.inverse(poses[ref]) @ poses[k]) @ estimated
@@ -333,10 +341,7 @@ def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
     then, search the others in vain; robots 1-3 grow next around the reference, robot 3, and overlap 4 and 6 by
     10 m2. The two groups are matched with each other, so 4 and 6 (and robot 5, which needs their walls) join in
     this estimation, each right; before, they waited for the next one."""
-    folder = repo_root / 'test' / 'data' / 'demo_late_group'
-    starts = json.loads((folder / 'start_poses.json').read_text())
-    names = sorted(starts)
-    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
+    names, grids, poses = _demo_late_group(repo_root)
     ref = names.index('robot_3')
     # the joins of these early maps (10-13 m2 each) leave the far corners 0.30-0.33 m uncertain, over the default
     # bound since the precision rule's calibration (bench/calibrate_precision.py): with a laxer bound, they test
@@ -347,7 +352,7 @@ def test_a_group_grown_after_an_earlier_one_is_matched_against_it(repo_root):
     assert {'robot_4', 'robot_6'} <= placed, placed
     for k, t in enumerate(found.transforms):
         if t is not None:
-            rot, shift = _error(t, [tf.rigid(*starts[n]) for n in names], k, ref)
+            rot, shift = _error(t, poses, k, ref)
             assert rot < 1.0 and shift < 0.15, (names[k], rot, shift)
 
 
@@ -491,11 +496,7 @@ def test_a_search_placement_the_members_near_it_leave_imprecise_stays(repo_root)
     """test/data/demo_late_group's robot_5, placed by a search onto robots 1-3: the building's wall direction, read on
     that whole union, makes it precise (0.11 m at the far corners); the members near it alone leave it 0.28-0.30 m
     uncertain. That is less evidence, not a contradiction: it stays (it was left out for good on static maps)."""
-    folder = repo_root / 'test' / 'data' / 'demo_late_group'
-    starts = json.loads((folder / 'start_poses.json').read_text())
-    names = [f'robot_{k}' for k in range(1, 7)]
-    grids = [load_map(str(folder / f'{n}.yaml')) for n in names]
-    poses = [tf.rigid(*starts[n]) for n in names]
+    _, grids, poses = _demo_late_group(repo_root)
     grower = _grower_of(grids, EstimationSettings())
     group = grower.group(1)
     for k in (0, 2, 4):

@@ -389,11 +389,9 @@ class Grower:
                                                           self.s, refine=False,
                                                           failing='the merge contradicts the placement a search '
                                                                   'found'), todo))
-            # not one refused for precision alone: the check sees the members near it only, whose walls can be too
-            # few to show the building's wall direction that made the search's placement precise on the whole union
-            # (orientation.angle_bound; test/data/demo_late_group: robot_5, 0.11 m there, 0.28-0.30 m here, left
-            # out for good on static maps); what members that joined since can show is a slide, and they show it
-            # as walls that disagree
+            # not for precision alone: the members near it can be too few to show the wall direction that made the
+            # search's placement precise on the whole union (orientation.angle_bound; demo_late_group's robot_5:
+            # 0.11 m there, 0.28-0.30 m here, left out for good on static maps); a slide shows as walls that disagree
             failed = [c for c in checks if c.transform is None and not c.imprecise]
             if not failed:
                 return
