@@ -19,7 +19,7 @@ import logging
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -34,7 +34,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
-from .tracking import move_verdict, track
+from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
 from .uniqueness import StandingCheck
 from .workers import ParallelMatcher
@@ -193,7 +193,9 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     robot 1.1 degrees and 25 cm off the others, all checks passing; the final maps estimated afresh placed every
     robot within 0.33 degrees). The fresh estimate replaces the kept one when it places every grid that one did,
     in the same frame, and places more, or moves one of them by more than FRESH_MOVE_M and the walls of the kept
-    grids' pairs fit it better (relax.walls_fitting: a fresh estimate can be the worse one).
+    grids' pairs fit it better (relax.walls_fitting: a fresh estimate can be the worse one). When each places a grid
+    the other does not, the kept placements stand and the grids only the fresh one placed join them where the kept
+    grids near them agree (_joined_from_fresh).
 
     With a memory, a grid placed for the first time is left out until a later estimation confirms it
     (confirmation.py); `now` (seconds, the caller's clock: ROS time in the node) tells it how long the maps have
@@ -263,9 +265,11 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     memory.fresh_inputs = inputs
     fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None)
     kept = {k for k, t in enumerate(result.transforms) if t is not None}
-    if fresh.reference != result.reference or not kept <= {k for k, t in enumerate(fresh.transforms)
-                                                           if t is not None}:
+    placed_afresh = {k for k, t in enumerate(fresh.transforms) if t is not None}
+    if fresh.reference != result.reference:
         return result
+    if not kept <= placed_afresh:
+        return _joined_from_fresh(result, fresh, grids, settings, cache, placed_afresh - kept)
     shifts = {k: tf.difference(fresh.transforms[k], result.transforms[k], known_corners(grids[k]))[1] for k in kept}
     moved = max(shifts.values())
     placed = sum(t is not None for t in fresh.transforms)
@@ -290,6 +294,37 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
             move_verdict(memory, names[k], fresh.transforms[k])
     fresh.seconds += result.seconds
     return fresh
+
+
+def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Optional[Grid]],
+                       settings: EstimationSettings, cache: FeatureCache, extra: set) -> Estimate:
+    """The kept placements, joined by the grids that only the estimate afresh placed (`extra`; same frame), each
+    where the kept grids near it agree with it (tracking's check, refined from its place afresh). Each estimate
+    placed a grid the other did not: the kept placements stand (their verdicts hold), and without this a grid
+    only the estimate afresh placed stayed out for good once the maps had stopped changing (its searches are
+    remembered: a rostest under load kept robot_5 out, the estimate afresh had placed it)."""
+    if not extra:
+        return result
+    res = working_resolution(grids, settings)
+    transforms, pairs = list(result.transforms), list(result.pairs)
+    placed = {k: t for k, t in enumerate(transforms) if t is not None}
+    prepared: List[Optional[PreparedGrid]] = [None] * len(grids)
+    for k in set(placed) | extra:
+        prepared[k] = cache.get(grids[k], res, settings.feature)
+    for k in sorted(extra):
+        if prepared[k] is None:
+            continue
+        trial = dict(placed)
+        trial[k] = fresh.transforms[k]
+        footprints = {m: footprint(grids[m], t) for m, t in trial.items()}
+        check = recheck(k, grids, prepared, trial, footprints, res, settings,
+                        failing='the kept placements contradict its placement afresh')
+        log.info('the final maps estimated afresh: grid %d, placed only there, %s', k,
+                 'joins the kept placements' if check.transform is not None else check.match.reason)
+        if check.transform is not None:
+            placed[k] = transforms[k] = check.transform
+            pairs = [m for m in pairs if m.i != k] + [check.match]
+    return replace(result, transforms=transforms, pairs=pairs)
 
 
 def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
