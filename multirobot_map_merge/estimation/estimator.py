@@ -301,8 +301,9 @@ def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Option
     """The kept placements, joined by the grids that only the estimate afresh placed (`extra`; same frame), each
     where the kept grids near it agree with it (tracking's check, refined from its place afresh). Each estimate
     placed a grid the other did not: the kept placements stand (their verdicts hold), and without this a grid
-    only the estimate afresh placed stayed out for good once the maps had stopped changing (its searches are
-    remembered: a rostest under load kept robot_5 out, the estimate afresh had placed it)."""
+    only the estimate afresh placed stayed out for good once the maps had stopped changing, its searches
+    remembered (test/data/demo_late_group estimated as the node does with a search budget of 0.1 s: the estimate
+    afresh placed robot_5, the kept placements robots 4 and 6)."""
     if not extra:
         return result
     res = working_resolution(grids, settings)
