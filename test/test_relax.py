@@ -141,7 +141,8 @@ def test_the_node_relaxes_a_group_that_outgrew_the_tracked_one_with_trackings_li
     relaxed = []
     real = estimator.relax_group
     monkeypatch.setattr(estimator, 'relax_group',
-                        lambda group, *args: relaxed.append((sorted(group.members), args[-1])) or real(group, *args))
+                        lambda group, *args, **kwargs: relaxed.append((sorted(group.members), args[-1]))
+                        or real(group, *args, **kwargs))
     pipeline = MergingPipeline(EstimationSettings(relax_final=False))
 
     def estimate(grids):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -156,8 +156,8 @@ def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group
 
 
 def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
-                s: EstimationSettings, limits: Limits = FINAL) -> None:
-    """Refine the group's placements together, its seed fixed (relax.py): each map was placed onto the union of
+                s: EstimationSettings, limits: Limits = FINAL, pool: Optional[Executor] = None) -> None:
+    """Refine the group's placements together, its seed fixed (relax.py, on the threads of `pool`): each map was placed onto the union of
     those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
     members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
     seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025
@@ -172,7 +172,7 @@ def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequenc
     if len(group.members) < 3:
         return   # a pair is refined together by its own match
     moved = relax(dict(group.members), group.seed, grids, prepared, dict(group.union.footprints), s.min_overlap_m2,
-                  s.seed, limits)
+                  s.seed, limits, pool)
     if moved is not None:
         group.move(moved)
 
@@ -399,11 +399,11 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
-            relax_group(chosen, usable, prepared, settings)
+            relax_group(chosen, usable, prepared, settings, pool=pool)
         elif tracked and chosen is not tracked_group:
             # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
             # never tracked, and are published once confirmed (confirmation.keep_standing)
-            relax_group(chosen, usable, prepared, settings, TRACKING)
+            relax_group(chosen, usable, prepared, settings, TRACKING, pool=pool)
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
+import threading
+from concurrent.futures import Executor
+from typing import Callable, Dict, Iterable, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -170,11 +172,19 @@ def _chunks(pairs: Sequence[Tuple[int, int]],
     return out
 
 
+def _each(pool: Optional[Executor], f: Callable, items: Sequence) -> Iterable:
+    """f of each item, in their order: on the threads of `pool` if there is one."""
+    return pool.map(f, items) if pool is not None else map(f, items)
+
+
 def _fits(chunks: List[List[Tuple[int, int]]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]],
-          prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray]) -> int:
+          prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray],
+          pool: Optional[Executor] = None) -> int:
     """Walls, over every pair, within FIT_PX of a wall of the other grid seen from the same side."""
-    return sum(len(w.correspondences(w.models(prepared, placed), prepared, FIT_PX)[0])
-               for w in (_PairWalls(c, samples) for c in chunks))
+    def fitting(chunk: List[Tuple[int, int]]) -> int:
+        walls = _PairWalls(chunk, samples)
+        return len(walls.correspondences(walls.models(prepared, placed), prepared, FIT_PX)[0])
+    return sum(_each(pool, fitting, chunks))
 
 
 def walls_fitting(placements: Sequence[Dict[int, np.ndarray]], prepared: Sequence[Optional[PreparedGrid]],
@@ -237,9 +247,9 @@ class _Directions:
     whose direction is off by more than orientation.MAX_TURN_DEGREES (a wing of another direction) takes no part."""
 
     def __init__(self, placed: Dict[int, np.ndarray], reference: int, prepared: Sequence[Optional[PreparedGrid]],
-                 at: int):
-        self.of = {k: o for k in placed if prepared[k] is not None
-                   for o in [orientation(prepared[k])] if o is not None}
+                 at: int, pool: Optional[Executor] = None):
+        ks = [k for k in placed if prepared[k] is not None]
+        self.of = {k: o for k, o in zip(ks, _each(pool, lambda k: orientation(prepared[k]), ks)) if o is not None}
         self.at = at   # the building's direction: its row and column in the normal equations
         self.unknowns = 1 if len(self.of) >= 2 else 0
         self.building = None
@@ -277,11 +287,13 @@ class _Directions:
 
 def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
           prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box],
-          min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = TRACKING) -> Optional[Dict[int, np.ndarray]]:
+          min_overlap_m2: float = 0.0, seed: int = 0, limits: Limits = TRACKING,
+          pool: Optional[Executor] = None) -> Optional[Dict[int, np.ndarray]]:
     """The placements (grid -> metric transform into the reference's frame) refined together, the reference fixed;
     None when they stay as they are (no pair to refine on, no better fit, or a move beyond limits.max_move_m at the
     corners of a grid's known part). Pairs whose footprints share less than `min_overlap_m2` (the common area a match
-    needs) hold too little of each other's walls to count."""
+    needs) hold too little of each other's walls to count. The chunks of pairs of an iteration are shared among the
+    threads of `pool` (numpy's array operations release the GIL), each adding its own terms."""
     moving = [k for k in placed if k != reference and prepared[k] is not None]
     pairs = overlapping_pairs([k for k in placed if prepared[k] is not None], footprints, min_overlap_m2)
     if not moving or not pairs:
@@ -290,12 +302,13 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     samples = {k: _sample(prepared[k], rng) for k in placed if prepared[k] is not None}
     idle: set = set()   # pairs with too few of i's walls near j's at the widest radius, none nearer later
     column = {k: 3 * n for n, k in enumerate(moving)}
-    directions = _Directions(placed, reference, prepared, len(column) * 3)
+    directions = _Directions(placed, reference, prepared, len(column) * 3, pool)
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first = True              # the first iteration: every pair, and the correspondences of each counted
     fitted = _chunks(pairs, samples)   # every pair judges the result
     chunks = fitted           # the pairs refined on, as long as no more go idle
     before = 0                # walls fitting at the placements given, over the pairs fitted
+    held = threading.local()  # each thread's last chunk's arrays (see terms)
     for radius in RADII:
         for _ in range(limits.iterations):
             # the walls' centre of each grid in the merged frame: turns about it keep the system well conditioned
@@ -304,19 +317,34 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
             g = np.zeros(3 * len(moving) + directions.unknowns)
             directions.add(out, prepared, column, h, g)
             counted: Dict[Tuple[int, int], int] = {}
-            for walls in (_PairWalls(c, samples) for c in chunks):   # one chunk's walls at a time
+
+            def terms(chunk: List[Tuple[int, int]]) -> Tuple[list, int, np.ndarray, np.ndarray]:
+                # one chunk's pairs: their counts, the walls fitting before, their normal equations
+                walls = _PairWalls(chunk, samples)
                 # one way per pair (i's walls onto j's, j's normals): the pair's other way adds little but the time
                 pair, p, q, n = walls.correspondences(walls.models(prepared, out), prepared, radius)
                 count = np.bincount(pair, minlength=len(walls.pairs))
-                counted.update(zip(walls.pairs, count.tolist()))
+                fitting = 0
                 if first:
                     # the walls fitting before (_fits) are those of these within FIT_PX: the same pairs, the same test
                     gap = q - p
-                    before += int(np.count_nonzero(gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1] <= FIT_PX * FIT_PX))
+                    fitting = int(np.count_nonzero(gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1] <= FIT_PX * FIT_PX))
+                hc, gc = np.zeros_like(h), np.zeros_like(g)
                 use = np.flatnonzero(count.take(pair) >= MIN_PAIRS)
                 if use.size:
                     _normal_equations(pair.take(use), p.take(use, axis=0), q.take(use, axis=0), n.take(use, axis=0),
-                                      walls, prepared, out, centre, column, h, g, radius)
+                                      walls, prepared, out, centre, column, hc, gc, radius)
+                # kept until this thread's next chunk: freed at once, they left the heap's top free, which the
+                # allocator gave back and faulted in again for the next chunk (8 times the page faults; large30's
+                # relaxation 1.1 -> 1.7 s)
+                held.last = walls, pair, p, q, n
+                return list(zip(walls.pairs, count.tolist())), fitting, hc, gc
+
+            for counts, fitting, hc, gc in _each(pool, terms, chunks):
+                counted.update(counts)
+                before += fitting
+                h += hc
+                g += gc
             refined = [ij for ij in pairs if ij in counted]   # in the order of `pairs`
             if radius == RADII[0]:
                 idle.update(ij for ij in refined if counted[ij] < MIN_PAIRS)
@@ -346,7 +374,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break
     moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
-    after = _fits(fitted, samples, prepared, out)
+    after = _fits(fitted, samples, prepared, out, pool)
     if moved > limits.max_move_m or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)
         return None
