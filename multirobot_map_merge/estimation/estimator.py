@@ -157,8 +157,9 @@ def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group
 
 def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
                 s: EstimationSettings, limits: Limits = FINAL, pool: Optional[Executor] = None) -> None:
-    """Refine the group's placements together, its seed fixed (relax.py, on the threads of `pool`): each map was placed onto the union of
-    those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
+    """Refine the group's placements together, its seed fixed (relax.py; on the threads of `pool` when given: the
+    final relaxation of an estimation afresh, not the node's, whose CPU is its bound): each map was placed onto the
+    union of those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
     members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
     seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025
     -> 0.011 degrees), further and longer than tracking's relaxation (relax.FINAL: mall36 seed 3, a group of nine
@@ -403,7 +404,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         elif tracked and chosen is not tracked_group:
             # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
             # never tracked, and are published once confirmed (confirmation.keep_standing)
-            relax_group(chosen, usable, prepared, settings, TRACKING, pool=pool)
+            relax_group(chosen, usable, prepared, settings, TRACKING)
 
     grower.memory.new_estimation()   # its comparisons hold this estimation's maps
     # the merged frame is the frame of the chosen group's seed

@@ -188,7 +188,7 @@ def track(previous: Sequence[Optional[np.ndarray]], reference: int, grids: Seque
             for k in placed:
                 if k != reference:
                     placed[k] = correction[0] @ placed[k]
-    relaxed = relax_placed(placed, reference, grids, prepared, footprints, s, memory, names, pool)
+    relaxed = relax_placed(placed, reference, grids, prepared, footprints, s, memory, names)
     for c in checks.values():
         if c.transform is None:
             log.info('grid %d: %s', c.k, c.match.reason)
@@ -213,8 +213,8 @@ def move_verdict(memory: EstimationMemory, name: Hashable, transform: np.ndarray
 
 def relax_placed(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optional[Grid]],
                  prepared: Sequence[Optional[PreparedGrid]], footprints: Dict[int, Box], s: EstimationSettings,
-                 memory: EstimationMemory, names: Sequence, pool: Optional[Executor] = None) -> set:
-    """Refine the kept placements together (relax.py, on the threads of `pool`), in place; the grids moved. Again only once a placed map has
+                 memory: EstimationMemory, names: Sequence) -> set:
+    """Refine the kept placements together (relax.py), in place; the grids moved. Again only once a placed map has
     grown or changed as much as a verdict on it allows (memory.unchanged), or the placed maps are others: on maps
     that barely changed it would find what it found last time."""
     if len(placed) < 3:
@@ -224,7 +224,7 @@ def relax_placed(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[
             and all(memory.unchanged(last[names[k]], grids[k]) for k in placed):
         return set()
     memory.relaxed = {names[k]: grids[k] for k in placed}
-    out = relax(placed, reference, grids, prepared, footprints, s.min_overlap_m2, s.seed, pool=pool)
+    out = relax(placed, reference, grids, prepared, footprints, s.min_overlap_m2, s.seed)
     if out is None:
         return set()
     moved = {k for k in placed if not np.allclose(out[k], placed[k])}
