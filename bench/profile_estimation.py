@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where one estimation's time goes, and what a second core gives it (not a test: it prints figures).
 
-    scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases]
+    scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases] [--kinds]
 
 MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
 estimation runs serially (its thread pools replaced by loops, no worker processes, OpenCV on one thread) under
@@ -12,7 +12,10 @@ in two processes at once: what the second core can give. With --phases it also p
 estimation with its defaults goes, as its main thread sees it: waiting for the batches of matches and the group
 matches made ahead (both on the workers), and the work it does alone (group matches, single-grid searches, the
 search of the maps left out and the relaxation at the end, the rest); and how busy the batches kept the worker
-processes (the share of the batches' wall time they spent reading grids and matching).
+processes (the share of the batches' wall time they spent reading grids and matching). With --kinds it also prints
+the CPU of each kind of match in a serial estimation without the profiler (KINDS: by the growth's method that asked
+for it): how many, how many accepted, their CPU and its share of the estimation's (a grid's keypoints are detected
+in the first match that needs them).
 """
 from __future__ import annotations
 
@@ -47,12 +50,19 @@ PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth
           ('the maps left out searched again', [(('growth.py', 'search_left_out'), None)]),
           ('the final relaxation', [(('estimator.py', 'relax_group'), None)])]
 
+# the kinds of match (--kinds): the first of these functions found up the stack of a match_pair call names it
+# (grow: onto one grid or onto a union)
+KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out', 'the maps left out searched again'),
+         ('_match_groups', 'group matches'), ('_match_ahead', 'group matches'), ('_search', 'single-grid searches'),
+         ('grow', 'growth by descriptors')]
+
 # one estimation of the maps in a folder; serial: pools replaced by loops, no worker processes, OpenCV on one
-# thread; profile: the file cProfile writes to ('' for none); prints the wall time in s
+# thread; profile: the file cProfile writes to ('' for none); kinds: the CPU of each kind of match printed; prints
+# the wall time in s
 ONE = '''
-import cProfile, glob, sys, time
+import cProfile, collections, glob, sys, time
 sys.path.insert(0, {root!r})
-serial, profile = {serial!r}, {profile!r}
+serial, profile, kinds = {serial!r}, {profile!r}, {kinds!r}
 import cv2
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -74,19 +84,45 @@ else:
     workers = logging.getLogger('rosout.multirobot_map_merge.estimation.workers')
     workers.setLevel(logging.DEBUG)
     workers.addHandler(Said())
+if kinds:
+    import multirobot_map_merge.estimation.workers as workers
+    spent = collections.defaultdict(lambda: [0, 0, 0.0])   # kind -> matches, accepted, CPU s
+    match_pair = workers.match_pair
+    def timed(i, j, pi, pj, s, **options):
+        frame, kind = sys._getframe(1), 'other'
+        while frame is not None and kind == 'other':
+            name = frame.f_code.co_qualname
+            kind = next((label for function, label in {kinds!r} if name.endswith(function)), 'other')
+            frame = frame.f_back
+        if kind == 'growth by descriptors':
+            kind += ', onto a union' if options.get('onto_union') else ', onto one grid'
+        started = time.process_time()
+        m = match_pair(i, j, pi, pj, s, **options)
+        row = spent[kind]
+        row[0] += 1
+        row[1] += bool(m.accepted)
+        row[2] += time.process_time() - started
+        return m
+    workers.match_pair = timed
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
 settings = EstimationSettings(processes=not serial)
-wall = time.perf_counter()
+wall, cpu = time.perf_counter(), time.process_time()
 if profile:
     cProfile.run('estimator.estimate(grids, settings)', profile)
 else:
     estimator.estimate(grids, settings)
+if kinds:
+    cpu = time.process_time() - cpu
+    for kind, (n, accepted, seconds) in sorted(spent.items(), key=lambda kv: -kv[1][2]):
+        print(f'  {{kind:45s}} {{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU {{100 * seconds / cpu:5.1f}} %')
+    rest = cpu - sum(row[2] for row in spent.values())
+    print(f'  {{"the rest (no match)":45s}}                          {{rest:6.2f}} s CPU {{100 * rest / cpu:5.1f}} %')
 print(time.perf_counter() - wall)
 '''
 
 
-def run(maps: Path, serial: bool, profile: str = '') -> subprocess.Popen:
-    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile)
+def run(maps: Path, serial: bool, profile: str = '', kinds: bool = False) -> subprocess.Popen:
+    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile, kinds=KINDS if kinds else [])
     return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
 
 
@@ -121,6 +157,7 @@ def main() -> None:
     ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
     ap.add_argument('--threads-gain', action='store_true', help='also time the defaults and two processes')
     ap.add_argument('--phases', action='store_true', help='also split an estimation with its defaults into phases')
+    ap.add_argument('--kinds', action='store_true', help='also the CPU of each kind of match, serially')
     args = ap.parse_args()
     if not glob.glob(str(args.maps / 'map_*.yaml')):
         sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
@@ -141,6 +178,10 @@ def main() -> None:
             shown += spent
             print(f'  {label:38s} {spent:6.2f} s  {100 * spent / total:4.1f} %')
         print(f'  {"the rest, on the main thread":38s} {total - shown:6.2f} s  {100 * (total - shown) / total:4.1f} %')
+    if args.kinds:
+        print(f'{args.maps.name}: the matches of a serial estimation by kind')
+        total = seconds(run(args.maps, True, kinds=True))
+        print(f'  serial estimation {total:.2f} s')
     if args.threads_gain:
         alone = seconds(run(args.maps, True))
         threads = seconds(run(args.maps, False))
