@@ -114,7 +114,8 @@ else:
 if kinds:
     cpu = time.process_time() - cpu
     for kind, (n, accepted, seconds) in sorted(spent.items(), key=lambda kv: -kv[1][2]):
-        print(f'  {{kind:45s}} {{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU {{100 * seconds / cpu:5.1f}} %')
+        print(f'  {{kind:45s}} {{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU '
+              f'{{100 * seconds / cpu:5.1f}} %')
     rest = cpu - sum(row[2] for row in spent.values())
     print(f'  {{"the rest (no match)":45s}}                          {{rest:6.2f}} s CPU {{100 * rest / cpu:5.1f}} %')
 print(time.perf_counter() - wall)

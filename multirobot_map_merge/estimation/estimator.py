@@ -159,12 +159,12 @@ def relax_group(group: Group, grids: Sequence[Optional[Grid]], prepared: Sequenc
                 s: EstimationSettings, limits: Limits = FINAL, pool: Optional[Executor] = None) -> None:
     """Refine the group's placements together, its seed fixed (relax.py; on the threads of `pool` when given: the
     final relaxation of an estimation afresh, not the node's, whose CPU is its bound): each map was placed onto the
-    union of those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by its own
-    members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map buildings,
-    seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error median 0.025
-    -> 0.011 degrees), further and longer than tracking's relaxation (relax.FINAL: mall36 seed 3, a group of nine
-    0.6 degrees off placed right). The placements stay when the walls fit no better or a map would move more than
-    FINAL.max_move_m.
+    union of those before it, and a group that joined as a whole a few tenths of a degree turned stays so, held by
+    its own members; on the walls of every overlapping pair at once it is pulled into place (the generated 36-map
+    buildings, seeds 0-2: 7 maps 0.4-0.5 degrees and 3.1-3.9 cells off placed right; the dev set's rotation error
+    median 0.025 -> 0.011 degrees), further and longer than tracking's relaxation (relax.FINAL: mall36 seed 3, a
+    group of nine 0.6 degrees off placed right). The placements stay when the walls fit no better or a map would
+    move more than FINAL.max_move_m.
 
     The node relaxes with tracking's `limits` a group that outgrew the tracked one: the merge moves to it in the
     estimation that confirms its placements, which were held in its own frame and never tracked (the dev scenario's
