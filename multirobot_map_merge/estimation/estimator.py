@@ -307,12 +307,9 @@ def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Option
     afresh placed robot_5, the kept placements robots 4 and 6)."""
     if not extra:
         return result
-    res = working_resolution(grids, settings)
     transforms, pairs = list(result.transforms), list(result.pairs)
     placed = {k: t for k, t in enumerate(transforms) if t is not None}
-    prepared: List[Optional[PreparedGrid]] = [None] * len(grids)
-    for k in set(placed) | extra:
-        prepared[k] = cache.get(grids[k], res, settings.feature)
+    res, prepared = _prepared_of(grids, settings, cache, set(placed) | extra)
     for k in sorted(extra):
         if prepared[k] is None:
             continue
@@ -329,12 +326,17 @@ def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Option
     return replace(result, transforms=transforms, pairs=pairs)
 
 
+def _prepared_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: FeatureCache,
+                 wanted: set) -> Tuple[float, List[Optional[PreparedGrid]]]:
+    """The working resolution, and the grids of `wanted` prepared at it (None for the others)."""
+    res = working_resolution(grids, settings)
+    return res, [cache.get(g, res, settings.feature) if k in wanted else None for k, g in enumerate(grids)]
+
+
 def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
              kept: Sequence[Optional[np.ndarray]], fresh: Sequence[Optional[np.ndarray]], placed: set) -> List[int]:
     """The walls fitting (relax.walls_fitting) over the pairs of the kept placements, kept and estimated afresh."""
-    cache = cache or FeatureCache()
-    res = working_resolution(grids, settings)
-    prepared = [cache.get(g, res, settings.feature) if k in placed else None for k, g in enumerate(grids)]
+    _, prepared = _prepared_of(grids, settings, cache or FeatureCache(), placed)
     boxes = {k: footprint(grids[k], kept[k]) for k in placed}
     pairs = overlapping_pairs(sorted(k for k in placed if prepared[k] is not None), boxes, settings.min_overlap_m2)
     return walls_fitting([{k: kept[k] for k in placed}, {k: fresh[k] for k in placed}], prepared, pairs, settings.seed)
