@@ -1,5 +1,6 @@
 """Growing the merge: newcomers matched against the union of the placed maps, tracking of previous placements,
 and the union's pooled keypoints (estimation/: estimator.py, union.py, tracking.py)."""
+import gc
 import json
 import math
 
@@ -256,6 +257,33 @@ def test_a_grid_blind_to_a_union_is_matched_again_only_for_new_members_its_descr
         grower = Grower(grids, prepared, 0.05, s, pool, None, None)
         assert grower._descriptors_agree(0, 1)
         assert not any(grower._descriptors_agree(a, b) for a, b in ((0, 2), (2, 0), (1, 2), (2, 1)))
+
+
+def test_what_was_tried_against_a_group_that_has_gone_does_not_count_for_a_new_one(repo_root):
+    """The growth keeps which grid was matched against which group's union; a group that has gone (absorbed by
+    another) leaves its id to the next object made, and a new group seeded there counted the gone one's matches as
+    its own (hospital36: two groups so, out of 52), so a grid was not matched against it. Here new groups are made
+    until one gets the id of a group matched against and dropped: grid 2 is still worth matching against it."""
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grids, _ = _sample(repo_root, 'three_robots')
+    grower = _grower_of(grids, EstimationSettings())
+    grower.match = lambda group, ks, search: [PairMatch(k, group.seed, reason='no rigid model') for k in ks]
+    reused, gone_ids = None, set()
+    for _ in range(200):   # CPython gives a freed object's memory to a later one of its size
+        grower.memory = EstimationMemory()   # what earlier groups of grid 0 alone were tried against: forgotten
+        gone = grower.group(0)
+        grower.grow(gone, [2], search=False)
+        assert not grower._worth_matching(2, gone)
+        gone_ids.add(id(gone))
+        del gone
+        gc.collect()
+        new = grower.group(1)
+        if id(new) in gone_ids:
+            reused = new
+            break
+    assert reused is not None, 'no group got the id of one that had gone'
+    assert grower._worth_matching(2, reused)
 
 
 def test_kept_placements_give_way_once_to_an_estimate_afresh_from_the_final_maps(repo_root, monkeypatch):

@@ -14,6 +14,7 @@ their maps grow.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import time
 from concurrent.futures import Executor
@@ -46,11 +47,17 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
 Progress = Callable[[int, int], None]   # (grids settled, grids in all), called as the estimation goes
 
 
+_GROUP_KEYS = itertools.count()
+
+
 class Group:
     """Grids placed together: grid index -> metric transform into the frame of the seed grid."""
 
     def __init__(self, seed: int, grid: Grid, prepared: PreparedGrid, res: float,
                  keypoints_of: Optional[Callable] = None):
+        # what was tried against the group is kept under this key, not its id: the id of a group that has gone (one
+        # absorbed by another) is soon another's, which would count as tried what never was
+        self.key = next(_GROUP_KEYS)
         self.seed = seed
         self.union = UnionMap(res, keypoints_of)
         self.union.add(seed, grid, prepared, np.eye(3))
@@ -120,8 +127,8 @@ class Grower:
         self.reference = reference
         self.progress = progress
         self.total = sum(p is not None for p in prepared)
-        self.tried: Dict[tuple, int] = {}       # (grid, group id) -> union version of the last descriptor match
-        self.blind: Dict[tuple, frozenset] = {}  # (grid, group id) -> members when its last match found no candidate
+        self.tried: Dict[tuple, int] = {}       # (grid, group key) -> union version of the last descriptor match
+        self.blind: Dict[tuple, frozenset] = {}  # (grid, group key) -> members when its last match found no candidate
         self.agreeing: Dict[tuple, bool] = {}   # (grid, grid) -> whether their descriptors agree on a rigid model
         self.memory = memory if memory is not None else EstimationMemory()   # one estimation's own, offline
         self.names = list(names) if names is not None else list(range(len(prepared)))
@@ -134,7 +141,7 @@ class Grower:
         self.found: Dict[int, List[frozenset]] = {}
         self.settled = 0
         self.searched: set = set()   # grids a correlation search placed (confirm_searches)
-        # (grid, group id) of the searches that failed in this estimation: searched again only by search_again
+        # (grid, group key) of the searches that failed in this estimation: searched again only by search_again
         self.failed_searches: set = set()
         self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
@@ -208,16 +215,16 @@ class Grower:
                 known = group.union.known_pixels   # prepares the union once, before the workers share it
                 members = frozenset(self.names[m] for m in group.members)
                 for k in batch:
-                    self.tried[(k, id(group))] = group.union.version
+                    self.tried[(k, group.key)] = group.union.version
                 results = self.match(group, batch, search=False)
                 if len(group.members) == 1:
                     for m in results:
                         self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
                 for m in results:
                     if m.best is None:
-                        self.blind[(m.i, id(group))] = frozenset(group.members)
+                        self.blind[(m.i, group.key)] = frozenset(group.members)
                     else:
-                        self.blind.pop((m.i, id(group)), None)
+                        self.blind.pop((m.i, group.key), None)
                 added = self._admit(group, unplaced, results)
                 for m in results:
                     if not m.accepted:
@@ -238,7 +245,7 @@ class Grower:
         """Whether grid k is to be matched against the group's union (again): not if it was matched against this
         union already, nor if its last match found where it overlaps the union (and contradicts it) and the union
         has not changed there since (the same descriptors against the same walls give the same verdict)."""
-        tried = self.tried.get((k, id(group)))
+        tried = self.tried.get((k, group.key))
         if tried is None:
             last = self.memory.tries.get((self.names[k], frozenset(self.names[m] for m in group.members)))
             # matched in an earlier estimation against these members: again once either has changed enough
@@ -254,7 +261,7 @@ class Grower:
             return False
         if tried == group.union.version:
             return False
-        blind = self.blind.get((k, id(group)))
+        blind = self.blind.get((k, group.key))
         if blind is not None:
             # its descriptors found no candidate at all on the union: only new members' keypoints can make one, and
             # a candidate needs some of them to agree on a rigid model with its own
@@ -330,7 +337,7 @@ class Grower:
         members = frozenset(self.names[m] for m in group.members)
         todo = []
         for k in sorted(unplaced, key=lambda k: self.prepared[k].known_pixels):
-            failed = (k, id(group)) in self.failed_searches
+            failed = (k, group.key) in self.failed_searches
             if failed and not self.again:
                 continue   # again once the group has grown as far as it can otherwise (search_again)
             last = self.memory.searches.get((self.names[k], self.names[group.seed]))
@@ -360,7 +367,7 @@ class Grower:
                 if self._admit(group, unplaced, [m]):
                     self.searched.add(k)
                     return True
-                self.failed_searches.add((k, id(group)))
+                self.failed_searches.add((k, group.key))
         return False
 
     def search_again(self, group: Group, unplaced: List[int]) -> None:
@@ -478,7 +485,7 @@ class Grower:
 
                 def matched(small: Group) -> bool:
                     # a single grid matched against this union already
-                    return len(small.members) == 1 and self.tried.get((small.seed, id(big))) == big.union.version
+                    return len(small.members) == 1 and self.tried.get((small.seed, big.key)) == big.union.version
 
                 for b in range(a + 1, len(groups)):
                     small = groups[b]
@@ -772,7 +779,7 @@ class Grower:
         self.search_seconds += time.perf_counter() - started
 
     def _match_groups(self, small: Group, big: Group) -> PairMatch:
-        self.tried[(small.seed, id(big))] = big.union.version
+        self.tried[(small.seed, big.key)] = big.union.version
         m = self._group_match_kept(small, big)
         if m is None:
             spent = self.search_seconds >= self.s.search_budget_s
