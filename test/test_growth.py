@@ -670,6 +670,50 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
     assert searched[4] > regrouped and searched[5] > regrouped
 
 
+@pytest.mark.parametrize('overlapping', [True, False])
+def test_a_seed_the_largest_grids_partly_contradict_waits_for_the_others(repo_root, monkeypatch, overlapping):
+    """descriptor_groups: a new seed is matched onto the largest grids first (Grower.grow's probe). When none joins
+    and enough of them overlap it but partly contradict it (the broken maps that are radial36's largest), the other
+    grids are not matched onto it: it waits, the next grid seeds and grows, the waiting one is matched onto that group
+    like any grid and seeds only after it. When the refusals found no overlap, the seed is matched with every grid."""
+    from multirobot_map_merge.estimation import growth
+    from multirobot_map_merge.estimation.estimator import descriptor_groups
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, _ = _sample(repo_root, 'three_robots')
+    grower = _grower_of(grids + grids + grids[:1], EstimationSettings())   # 7 grids; their matches made up below
+    monkeypatch.setattr(growth, 'SEED_PROBE', 2)
+    monkeypatch.setattr(growth, 'SEED_CONTRADICTED', 2)
+    order = sorted(range(7), key=lambda k: -grower.prepared[k].known_pixels)
+    broken, healthy = order[0], order[1]
+    partly = Placement(np.eye(3), support=900, agreement=0.8, overlap_m2=40.0) if overlapping else None
+    matched = []
+
+    def match(self, group, ks, search):
+        out = []
+        for k in ks:
+            matched.append((group.seed, k))
+            accepted = group.seed != broken and k != broken
+            m = PairMatch(k, group.seed, accepted=accepted, reason='' if accepted else 'agreement 0.80 < 0.91',
+                          best=None if accepted else partly)
+            m.transform_m = np.eye(3)
+            out.append(m)
+        return out
+
+    monkeypatch.setattr(Grower, 'match', match)
+    groups = descriptor_groups(grower, list(range(7)))
+    onto_broken = [k for seed, k in matched if seed == broken]
+    if overlapping:
+        assert onto_broken == order[1:3]
+        assert [g.seed for g in groups] == [healthy, broken]
+        assert (healthy, broken) in matched
+    else:
+        assert sorted(onto_broken) == sorted(order[1:])
+        assert [g.seed for g in groups] == [broken, healthy]
+    assert sorted(k for g in groups for k in g.members) == list(range(7))
+
+
 def test_tracking_checks_again_only_the_placements_that_saw_the_map_it_dropped(monkeypatch):
     """After the worst failing placement is dropped, a check whose maps did not include it would be the same check
     on the same maps: only the placements near the dropped one are checked again, and the verdicts are those of

@@ -33,7 +33,7 @@ from .eviction import MIN_AGREEING, contradicted_members, judge_members
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
-from .verify import Placement, overlap_found, plausible, refusal, verify
+from .verify import Placement, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
@@ -41,6 +41,8 @@ LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement
 JOIN_EVICTIONS = 3     # members taken out of two groups whose unions refuse each other (evict_at_join), at most
 LEFT_OUT_ROUNDS = 3    # search_left_out's rounds: the searches, and again while maps join (those short of the share)
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
+SEED_PROBE = 12        # grids matched first onto a new seed (grow's probe)
+SEED_CONTRADICTED = 8  # of those, refused ones that overlap it and partly contradict it, none accepted: the seed waits
 
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.growth')
 
@@ -177,7 +179,7 @@ class Grower:
     def group(self, seed: int, settle: bool = True) -> Group:
         """A new group of the seed alone (the seed counts as settled unless it was already)."""
         if settle:
-            self._settle(1)
+            self.settle(1)
         return Group(seed, self.grids[seed], self.prepared[seed], self.res, self.keypoints_of)
 
     def tracked_group(self, reference: int, kept: Dict[int, np.ndarray], checks: Sequence) -> Group:
@@ -195,7 +197,7 @@ class Grower:
                     # (the status's used pairs) name a grid nearer the reference, so that they connect every one
                     match = dataclasses.replace(match, j=j, transform_m=tf.inverse(kept[j]) @ t)
                 group.links[k] = match
-        self._settle(len(group.members) - 1)
+        self.settle(len(group.members) - 1)
         return group
 
     def match(self, group: Group, grids: Sequence[int], search: bool) -> List[PairMatch]:
@@ -206,35 +208,64 @@ class Grower:
                                                  dict(onto_union=len(group.members) > 1, search=search,
                                                       descriptors=not search)) for k in grids])
 
-    def grow(self, group: Group, unplaced: List[int], search: bool = True) -> None:
+    def grow(self, group: Group, unplaced: List[int], search: bool = True, probe: bool = False) -> bool:
         """Add to the group every grid of `unplaced` (removed from it) that can be placed against its union (with
-        search=False, by descriptors alone)."""
+        search=False, by descriptors alone).
+
+        With `probe` (a new seed), the first SEED_PROBE grids of `unplaced` are matched first; when none of them
+        joins and SEED_CONTRADICTED of them overlap the seed but partly contradict it (partly_agreeing), the seed
+        is likely a map broken by a SLAM failure: nothing joins, the other grids are not matched, and it returns
+        True. Otherwise all are judged together, as without the probe. Returns False."""
         while unplaced:
             batch = [k for k in unplaced if self._worth_matching(k, group)]
             if batch:
                 known = group.union.known_pixels   # prepares the union once, before the workers share it
                 members = frozenset(self.names[m] for m in group.members)
-                for k in batch:
-                    self.tried[(k, group.key)] = group.union.version
-                results = self.match(group, batch, search=False)
-                if len(group.members) == 1:
-                    for m in results:
-                        self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
-                for m in results:
-                    if m.best is None:
-                        self.blind[(m.i, group.key)] = frozenset(group.members)
-                    else:
-                        self.blind.pop((m.i, group.key), None)
-                added = self._admit(group, unplaced, results)
-                for m in results:
-                    if not m.accepted:
-                        self.memory.tries.put((self.names[m.i], members),
-                                              (self.grids[m.i], known, m.i in self.contradicting,
-                                               overlap_found(m.best, self.s, len(group.members) > 1)))
-                if added:
+                first = batch[:SEED_PROBE] if probe and len(batch) > SEED_PROBE else batch
+                probe = False
+                results = self._match_tried(group, first)
+                if first is not batch and self._contradicted_seed(results):
+                    self._take(group, results, members, known)
+                    return True
+                if first is not batch:
+                    results += self._match_tried(group, batch[SEED_PROBE:])
+                if self._take(group, results, members, known, unplaced):
                     continue
             if not search or not self._search(group, unplaced):
-                return
+                return False
+        return False
+
+    def _match_tried(self, group: Group, grids: List[int]) -> List[PairMatch]:
+        """The grids matched onto the group's union by descriptors, noted as tried against this version of it."""
+        for k in grids:
+            self.tried[(k, group.key)] = group.union.version
+        results = self.match(group, grids, search=False)
+        if len(group.members) == 1:
+            for m in results:
+                self.pair_evidence.put(m)   # the same call as the pair evidence's (stronger.py)
+        return results
+
+    def _take(self, group: Group, results: List[PairMatch], members: frozenset, known: int,
+              unplaced: Optional[List[int]] = None) -> bool:
+        """The results of a batch onto the group noted; those accepted join it (removed from `unplaced`; None: the
+        batch of a seed that waits, none accepted). Whether any joined."""
+        for m in results:
+            if m.best is None:
+                self.blind[(m.i, group.key)] = frozenset(group.members)
+            else:
+                self.blind.pop((m.i, group.key), None)
+        added = self._admit(group, unplaced if unplaced is not None else [], results)
+        for m in results:
+            if not m.accepted:
+                self.memory.tries.put((self.names[m.i], members),
+                                      (self.grids[m.i], known, m.i in self.contradicting,
+                                       overlap_found(m.best, self.s, len(group.members) > 1)))
+        return added
+
+    def _contradicted_seed(self, results: List[PairMatch]) -> bool:
+        """Whether a new seed's probe (grow) says that it contradicts the grids that overlap it."""
+        return not any(m.accepted for m in results) \
+            and sum(partly_agreeing(m.best, self.s) for m in results) >= SEED_CONTRADICTED
 
     def outcast(self, k: int, merge: Optional[Group]) -> bool:
         """Whether grid k seeds no group: once `merge` holds most grids, a grid that overlaps a group but contradicts
@@ -726,7 +757,7 @@ class Grower:
         group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
         self.refused.pop(m.i, None)
         self._forget_search(m.i, group)
-        self._settle(1)
+        self.settle(1)
 
     def _evict(self, group: Group, j: int, why: str) -> None:
         """Member j leaves the group and stays out of this estimation."""
@@ -791,7 +822,7 @@ class Grower:
             self.postponed += 1
         return m
 
-    def _settle(self, n: int) -> None:
+    def settle(self, n: int) -> None:
         self.settled += n
         if self.progress is not None:
             self.progress(min(self.settled, self.total), self.total)

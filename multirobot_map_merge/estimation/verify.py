@@ -378,8 +378,14 @@ def overlap_found(c: Optional[Placement], s: EstimationSettings, onto_union: boo
         return False
     return (plausible(c, s.replace(max_deep_conflicts=math.inf, max_movable_conflicts=math.inf,
                                  max_gap_conflicts=math.inf))
-            or (onto_union and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2
-                and c.agreement >= FOUND_AGREEMENT))
+            or (onto_union and partly_agreeing(c, s)))
+
+
+def partly_agreeing(c: Optional[Placement], s: EstimationSettings) -> bool:
+    """Whether a placement has twice the support a pair needs, its common area, and agrees mostly (FOUND_AGREEMENT):
+    the maps overlap there, whether or not they contradict."""
+    return c is not None and c.support >= 2 * s.min_support and c.overlap_m2 >= s.min_overlap_m2 \
+        and c.agreement >= FOUND_AGREEMENT
 
 
 def pair_confidence(inliers: int, matches: int) -> float:
