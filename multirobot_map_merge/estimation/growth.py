@@ -221,13 +221,12 @@ class Grower:
             if batch:
                 known = group.union.known_pixels   # prepares the union once, before the workers share it
                 members = frozenset(self.names[m] for m in group.members)
-                first = batch[:SEED_PROBE] if probe and len(batch) > SEED_PROBE else batch
-                probe = False
-                results = self._match_tried(group, first)
-                if first is not batch and self._contradicted_seed(results):
-                    self._take(group, results, members, known)
-                    return True
-                if first is not batch:
+                probing, probe = probe and len(batch) > SEED_PROBE, False
+                results = self._match_tried(group, batch[:SEED_PROBE] if probing else batch)
+                if probing:
+                    if self._contradicted_seed(results):
+                        self._take(group, results, members, known, unplaced)   # none joins: refusals noted
+                        return True
                     results += self._match_tried(group, batch[SEED_PROBE:])
                 if self._take(group, results, members, known, unplaced):
                     continue
@@ -246,15 +245,15 @@ class Grower:
         return results
 
     def _take(self, group: Group, results: List[PairMatch], members: frozenset, known: int,
-              unplaced: Optional[List[int]] = None) -> bool:
-        """The results of a batch onto the group noted; those accepted join it (removed from `unplaced`; None: the
-        batch of a seed that waits, none accepted). Whether any joined."""
+              unplaced: List[int]) -> bool:
+        """The results of a batch onto the group noted; those accepted join it (removed from `unplaced`). Whether any
+        joined."""
         for m in results:
             if m.best is None:
                 self.blind[(m.i, group.key)] = frozenset(group.members)
             else:
                 self.blind.pop((m.i, group.key), None)
-        added = self._admit(group, unplaced if unplaced is not None else [], results)
+        added = self._admit(group, unplaced, results)
         for m in results:
             if not m.accepted:
                 self.memory.tries.put((self.names[m.i], members),
