@@ -68,18 +68,18 @@ class MergingPipeline:
     def estimate(self, preferred_reference: Optional[int] = None,
                  previous: Optional[Sequence[Optional[np.ndarray]]] = None,
                  progress: Optional[Progress] = None, names: Optional[Sequence[str]] = None,
-                 now: Optional[float] = None) -> Estimate:
+                 now: Optional[float] = None, budget_script: Optional[Sequence[bool]] = None) -> Estimate:
         """Estimate transforms from the grids' content (unknown initial poses); `previous` (transforms of the
         current grids from the last estimate, same reference) are kept while they still hold (tracking.py);
         `progress(settled, total)` is called as grids are placed or set aside; `names` (stable names of the grids,
         e.g. robot namespaces) let the pipeline's memory skip, in the next estimation, work whose answer cannot have
         changed much (memory.py); `now` (s, ROS time in the node) lets it tell how long the maps have not changed
-        (confirmation.py)."""
+        (confirmation.py); `budget_script` replays a recorded estimation's search budget (estimator.estimate)."""
         if preferred_reference is None:
             preferred_reference = self.reference
         memory = self.memory if names is not None else None
         result = estimate(self.grids, self.settings, self.cache, preferred_reference, previous, progress, memory,
-                          names, now)
+                          names, now, budget_script)
         self.transforms, self.reference, self.last_estimate = list(result.transforms), result.reference, result
         return result
 

@@ -20,7 +20,8 @@
 #   --limit-sim S       give up after S s of sim time (default 1200)
 #   --limit-wall S      give up after S s of real time (default 240; 900 for more than 6 robots)
 #   --out DIR           output directory (default out/demo)
-#   --record FILE.bag   also record the robots' maps, map updates and map_merge's status into a rosbag
+#   --record FILE.bag   also record the robots' maps, map updates and map_merge's status into a rosbag, and
+#                       map_merge's estimations (their exact inputs) into FILE.estimations/ (recording.py)
 #   --offline [NAME]    instead: merge the sample maps data/samples/NAME (default three_robots) offline and report
 #                       their placement error (no ROS master)
 # Run through scripts/env.sh (make demo does).
@@ -33,7 +34,7 @@ set -- $*
 
 robots=3 world="" world_seed=0 seed=0 speedup="" coordinate=true realistic=false limit_sim=1200 limit_wall=""
 out="$repo/out/demo" offline="" scenario=three_robots record=""
-usage() { sed -n '2,26p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,27p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 need() { [ $# -ge 2 ] && [ -n "$2" ] || { echo "demo: $1 needs a value" >&2; exit 2; }; }
 while [ $# -gt 0 ]; do
   opt=$1 val=""
@@ -98,6 +99,8 @@ stop_recorder() {   # also on Ctrl-C or an error: no recorder or master of ours 
 trap stop_recorder EXIT
 if [ -n "$record" ]; then
   mkdir -p "$(dirname "$record")"
+  export MAP_MERGE_RECORD_ESTIMATIONS="${record%.bag}.estimations"
+  rm -rf "$MAP_MERGE_RECORD_ESTIMATIONS"
   # The recorder subscribes before the fleet starts, so that the bag holds every map and update from the first
   # (started with the launch, it connected after 1-2 s of real time, 5-10 sim s; until then only the latched
   # latest map of each robot reached it). Its own master (with rosout) first; roslaunch then uses that one.
@@ -123,7 +126,7 @@ timeout --signal=INT --kill-after=15 "$(python -c "print(int(float('$limit_wall'
   | grep --line-buffered -v 'REQUIRED process \[demo_supervisor'
 if [ -n "$rec_pid" ]; then
   stop_recorder
-  echo "demo: maps recorded in $record"
+  echo "demo: maps recorded in $record, map_merge's estimations in $MAP_MERGE_RECORD_ESTIMATIONS"
 fi
 set -e
 if [ ! -f "$out/summary.txt" ]; then

@@ -105,3 +105,23 @@ def test_a_spent_budget_postpones_a_match_between_groups_that_needs_the_search(r
     a = match_pair(0, 1, u['c'], u['b'], s, onto_union=True, between_groups=True)
     b = match_pair(0, 1, u['c'], u['b'], s, onto_union=True, between_groups=True, search_spent=True)
     assert a.accepted and b.accepted and np.allclose(a.transform_m, b.transform_m)
+
+
+def test_an_estimation_given_a_recorded_budget_makes_the_same_searches(repo_root):
+    """The budget is wall time (a live node's cuts depend on its machine's load): an estimation given the budget's
+    answers of another one (growth.SearchBudget, recording.py) makes the searches that one made, whatever its own
+    budget, and places the same maps."""
+    grids, _ = _maps(repo_root, 'demo_late_group')
+    cut = estimate(grids, EstimationSettings(evict=False, search_budget_s=ONE_SEARCH))
+    full = estimate(grids, EstimationSettings(evict=False))
+    placed = [k for k, t in enumerate(cut.transforms) if t is not None]
+    assert cut.postponed > 0 and any(cut.budget_verdicts) and not any(full.budget_verdicts)
+    assert len(placed) < sum(t is not None for t in full.transforms)
+    # no budget at all, but the cut one's answers: the same cut
+    again = estimate(grids, EstimationSettings(evict=False), budget_script=cut.budget_verdicts)
+    assert again.budget_verdicts == cut.budget_verdicts and again.postponed == cut.postponed
+    assert [k for k, t in enumerate(again.transforms) if t is not None] == placed
+    # and a budget spent at once, given the full one's answers, searches as the full one
+    spared = estimate(grids, EstimationSettings(evict=False, search_budget_s=0.0), budget_script=full.budget_verdicts)
+    assert spared.postponed == 0
+    assert sum(t is not None for t in spared.transforms) == sum(t is not None for t in full.transforms)

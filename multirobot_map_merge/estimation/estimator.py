@@ -29,7 +29,7 @@ from ..grid import Grid
 from ..progress import progress_of
 from .confirmation import hold_new, keep_standing, remember_shown, static_for, with_held
 from .features import FeatureCache, PreparedGrid, content_key
-from .growth import Group, Grower, Progress
+from .growth import Group, Grower, Progress, SearchBudget
 from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
@@ -64,6 +64,7 @@ class Estimate:
     # when another group is chosen: the group holding the preferred reference, its placements (in that reference's
     # frame) and links; published instead while the chosen one would show fewer grids (confirmation.keep_standing)
     standing: Optional[Tuple[Dict[int, np.ndarray], List[PairMatch]]] = field(default=None, repr=False)
+    budget_verdicts: List[bool] = field(default_factory=list, repr=False)   # growth.SearchBudget's answers
 
 
 def working_resolution(grids: Sequence[Optional[Grid]], settings: EstimationSettings) -> float:
@@ -194,7 +195,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
              preferred_reference: Optional[int] = None,
              previous: Optional[Sequence[Optional[np.ndarray]]] = None,
              progress: Optional[Progress] = None, memory: Optional[EstimationMemory] = None,
-             names: Optional[Sequence] = None, now: Optional[float] = None) -> Estimate:
+             names: Optional[Sequence] = None, now: Optional[float] = None,
+             budget_script: Optional[Sequence[bool]] = None) -> Estimate:
     """Estimate where every grid goes. Grids that are None, empty or unmatched get no transform. With `previous`
     (the last estimate's transforms, same grid order, same reference), the placements that still hold are kept
     (tracking.py) and only the other grids are searched. `memory` (with `names`, stable names of the grids such as
@@ -212,7 +214,8 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
 
     With a memory, a grid placed for the first time is left out until a later estimation confirms it
     (confirmation.py); `now` (seconds, the caller's clock: ROS time in the node) tells it how long the maps have
-    not changed."""
+    not changed. `budget_script`: the search budget's answers of a recorded estimation (growth.SearchBudget), so
+    that a replay makes the same searches; the answers of this one are in the result's `budget_verdicts`."""
     count = len(grids)
     published = previous
     previous = with_held(previous, memory, names, preferred_reference, count)
@@ -221,8 +224,10 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     inputs = tuple(zip(names, contents)) if contents is not None and memory is not None and names else None
     settled = inputs is not None and all(memory.latest.get(n) == c for n, c in inputs)
     cache = cache or FeatureCache()
+    budget = SearchBudget(budget_script)
     result = _estimate_kept(grids, settings, cache, preferred_reference, previous, progress, memory, names,
-                            contents, inputs, settled)
+                            contents, inputs, settled, budget)
+    result.budget_verdicts = budget.verdicts
     if memory is not None and names:
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
                                static_for(memory, settled, now),
@@ -248,7 +253,8 @@ def unique_pairs(pairs: Sequence[PairMatch]) -> List[PairMatch]:
 def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
                    preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
                    progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence],
-                   contents: Optional[List[Optional[str]]], inputs: Optional[tuple], settled: bool) -> Estimate:
+                   contents: Optional[List[Optional[str]]], inputs: Optional[tuple], settled: bool,
+                   budget: SearchBudget) -> Estimate:
     """estimate() without the confirmation of new placements; `contents`: the grids' content keys (None without
     previous placements), `inputs`: (name, content key) pairs (None without a memory), `settled`: the maps are
     those of the last estimation."""
@@ -263,11 +269,12 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
         # test/data/demo_late_group stayed at two placed in eight estimations); not unlimited at once: every search
         # on 30 robots' first tiny maps in one estimation took 5.3 s
         memory.postponed_rounds += 1
-        budget = settings.search_budget_s * 2 ** memory.postponed_rounds
-        settings = settings.replace(search_budget_s=budget if memory.postponed_rounds < POSTPONED_ROUNDS else math.inf)
+        seconds = settings.search_budget_s * 2 ** memory.postponed_rounds
+        settings = settings.replace(search_budget_s=seconds if memory.postponed_rounds < POSTPONED_ROUNDS else math.inf)
     elif memory is not None:
         memory.postponed_rounds = 0
-    result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents)
+    result = _estimate(grids, settings, cache, preferred_reference, previous, progress, memory, names, contents,
+                       budget)
     if inputs is not None:
         for n, c in inputs:
             memory.latest.put(n, c)
@@ -276,7 +283,7 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     if not due or not result.tracked:
         return result
     memory.fresh_inputs = inputs
-    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None)
+    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None, budget)
     kept = {k for k, t in enumerate(result.transforms) if t is not None}
     placed_afresh = {k for k, t in enumerate(fresh.transforms) if t is not None}
     if fresh.reference != result.reference:
@@ -357,7 +364,7 @@ def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
 def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: Optional[FeatureCache],
               preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
               progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence],
-              contents: Optional[Sequence[Optional[str]]]) -> Estimate:
+              contents: Optional[Sequence[Optional[str]]], budget: Optional[SearchBudget] = None) -> Estimate:
     settings.validate()
     progress = progress or progress_of(settings)   # merge_maps attaches its terminal display to the settings
     t0 = time.perf_counter()
@@ -370,7 +377,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         present = [k for k, p in enumerate(prepared) if p is not None]
         if not present:
             return Estimate(transforms, None, seconds=time.perf_counter() - t0)
-        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress, memory, names, matcher)
+        grower = Grower(usable, prepared, res, settings, pool, preferred_reference, progress, memory, names, matcher,
+                        budget)
         groups: List[Group] = []
         checks = []
         if preferred_reference in present and previous is not None and len(previous) == len(grids) \

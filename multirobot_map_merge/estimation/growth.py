@@ -52,6 +52,23 @@ Progress = Callable[[int, int], None]   # (grids settled, grids in all), called 
 _GROUP_KEYS = itertools.count()
 
 
+class SearchBudget:
+    """Whether one estimation's correlation searches have spent their budget (settings.search_budget_s), asked
+    before each search. The budget is wall time, the one thing in an estimation that depends on the machine's load:
+    each answer is logged (`verdicts`) so that a replay of the estimation can be given the same answers (`script`;
+    beyond its end the clock answers), and makes the same searches (recording.py)."""
+
+    def __init__(self, script: Optional[Sequence[bool]] = None) -> None:
+        self.verdicts: List[bool] = []
+        self._script = list(script) if script is not None else None
+
+    def spent(self, seconds: float, budget: float) -> bool:
+        k = len(self.verdicts)
+        verdict = self._script[k] if self._script is not None and k < len(self._script) else seconds >= budget
+        self.verdicts.append(verdict)
+        return verdict
+
+
 class Group:
     """Grids placed together: grid index -> metric transform into the frame of the seed grid."""
 
@@ -124,7 +141,8 @@ class Grower:
     def __init__(self, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]], res: float,
                  settings: EstimationSettings, pool: Executor, reference: Optional[int],
                  progress: Optional[Progress], memory: Optional[EstimationMemory] = None,
-                 names: Optional[Sequence] = None, matcher: Optional[ParallelMatcher] = None):
+                 names: Optional[Sequence] = None, matcher: Optional[ParallelMatcher] = None,
+                 budget: Optional[SearchBudget] = None):
         self.grids, self.prepared, self.res, self.s, self.pool = grids, prepared, res, settings, pool
         self.reference = reference
         self.progress = progress
@@ -147,6 +165,7 @@ class Grower:
         self.failed_searches: set = set()
         self.again = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
+        self.budget = budget if budget is not None else SearchBudget()
         self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
@@ -384,7 +403,7 @@ class Grower:
                 continue
             todo.append(k)
         for start in range(0, len(todo), self.s.threads):
-            if self.search_seconds >= self.s.search_budget_s:
+            if self._spent():
                 # these grids are searched in a later estimation (their memory is not updated)
                 self.postponed += 1
                 return False
@@ -682,7 +701,7 @@ class Grower:
         had their rounds: a member one map singled out can be right and that map wrong (the generated radial hall: a
         broken map placed at the hub by one part voted out the right map that had seen the hub); it joins again by
         the same rules (a broken member taken out in hospital36 seed 1: its search found no place they accept)."""
-        if self.search_seconds >= self.s.search_budget_s:
+        if self._spent():
             return 0
         union = group.union.prepared()
         if readmit:
@@ -734,7 +753,7 @@ class Grower:
             # a map that just joined: judged again there on the grown merge, and searched again where that merge
             # refuses it (an alias that a map that joined contradicts)
             waiting = sorted(k for k in self.left_out_accepted if k not in group.members)
-            if not joining or not waiting or self.search_seconds >= self.s.search_budget_s:
+            if not joining or not waiting or self._spent():
                 break
             union = group.union.prepared()
             placed = [m for m in (self._placed_again(self.left_out_matches[k], union) for k in waiting)
@@ -779,7 +798,7 @@ class Grower:
             return None
         versions, spent = last[2]
         if versions != (small.union.version, big.union.version) or \
-                (spent and self.search_seconds < self.s.search_budget_s):
+                (spent and not self._spent()):
             return None
         return last[3]
 
@@ -801,7 +820,7 @@ class Grower:
         such matches are refused, and one that is accepted changes the big union for the rest, whose matches are
         made again (at most `threads` - 1 matches in vain)."""
         todo = [g for g in smalls if self._group_match_kept(g, big) is None]
-        if len(todo) < 2 or self.search_seconds >= self.s.search_budget_s:
+        if len(todo) < 2 or self._spent():
             return
         started = time.perf_counter()
         for g, m in zip(todo, self.matcher.match_all([self._group_call(g, big, False) for g in todo])):
@@ -812,7 +831,7 @@ class Grower:
         self.tried[(small.seed, big.key)] = big.union.version
         m = self._group_match_kept(small, big)
         if m is None:
-            spent = self.search_seconds >= self.s.search_budget_s
+            spent = self._spent()
             started = time.perf_counter()
             m = self.matcher.match_here(self._group_call(small, big, spent))
             self.search_seconds += time.perf_counter() - started
@@ -820,6 +839,9 @@ class Grower:
         if m.reason == SEARCH_POSTPONED:
             self.postponed += 1
         return m
+
+    def _spent(self) -> bool:
+        return self.budget.spent(self.search_seconds, self.s.search_budget_s)
 
     def settle(self, n: int) -> None:
         self.settled += n

@@ -48,6 +48,8 @@ outside -1 and 0..100 are read as unknown, and a robot whose map or placement wo
 ~free_threshold and ~occupied_threshold (probabilistic maps, e.g. Cartographer's, are placed too); the merged map
 keeps the values as published, combined as the original (maximum).
 `~status` transforms are robot map frame -> world_frame as placed by the latest merge cycle.
+Diagnostic: with the environment variable MAP_MERGE_RECORD_ESTIMATIONS=DIR the node records every estimation's
+inputs and result into DIR (recording.py; scripts/replay_estimations.py estimates them again offline).
 """
 from __future__ import annotations
 
@@ -67,6 +69,7 @@ from ..estimation.features import FeatureCache
 from ..msg import MergeStatus
 from ..paramdoc import docstring
 from ..pipeline import MergingPipeline
+from ..recording import EstimationRecorder
 from ..throttle import Throttle
 from .conversions import center_origin, grid_to_msg, restamped, transform_msg
 from .pacing import LoopPacer
@@ -104,6 +107,7 @@ class MapMergeNode:
         self._estimate_pipeline = MergingPipeline(params.estimation_settings())  # estimation thread only
         self._estimation_gate = EstimationGate()   # estimation thread only
         self._cache_capacity = 0                      # estimation thread only
+        self._recorder = EstimationRecorder.from_environment()   # estimation thread only (a diagnostic)
         self._last_merge = None                       # merging thread only: (inputs, message, world_from_merged)
         self._map_pub = rospy.Publisher(params.merged_map_topic, OccupancyGrid, queue_size=50, latch=True)
         # merged maps go out as numpy_msg messages: the same bytes, serialized ~100 times faster (conversions.py)
@@ -136,6 +140,8 @@ class MapMergeNode:
 
     def stop(self) -> None:
         self._stop.set()
+        if self._recorder is not None:
+            self._recorder.close()
         for kick in self._kicks.values():
             LoopPacer.wake(kick)
 
@@ -185,7 +191,11 @@ class MapMergeNode:
         preferred = names.index(reference) if reference in names and grids[names.index(reference)] is not None \
             else None
         # a robot placed before stays placed while its map still agrees with the others (tracking.py)
-        result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=names, now=rospy.get_time())
+        now, started = rospy.get_time(), time.perf_counter()
+        result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=names, now=now)
+        if self._recorder is not None:
+            self._recorder.record(now, names, grids, reference if preferred is not None else None, previous, result,
+                                  time.perf_counter() - started)
         for p in result.pairs:
             rospy.logdebug('map_merge: pair %s - %s: %d matches, %d inliers, confidence %.3f, %s%s',
                            names[p.i], names[p.j], p.matches, p.inliers, p.confidence,

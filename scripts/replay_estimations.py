@@ -1,0 +1,127 @@
+#!/usr/bin/env python3
+"""Estimate a live node's recorded estimations again, one by one, with their exact inputs (a diagnostic).
+
+    scripts/env.sh python scripts/replay_estimations.py RUN.estimations [--summary SUMMARY.json] [--budget S]
+        [--own] [--until N] [--why ROBOT]
+
+RUN.estimations is what the map_merge node records with MAP_MERGE_RECORD_ESTIMATIONS set (`make demo DEMO_ARGS="...
+--record RUN.bag"` writes it beside the bag; multirobot_map_merge/recording.py): per estimation the snapshots of the
+robots' maps it started from, its reference and the placements it tracked. The replay feeds them to one pipeline
+with the node's settings in the same order (its memory and confirmation evolve as the node's did, if the results
+agree), and prints per estimation: its index and ROS time, what the node placed and what the replay places (robots
+placed by one and not the other; the largest difference between the two placements of a robot, in metres at its
+map's corners, as the estimator measures moves) and both wall times; with the demo's summary.json, the worst
+placement error of each against the ground truth (start poses; relative to the first placed robot by name, as the
+summary measures). Each estimation starts from the node's recorded placements (what it tracked live) unless --own
+(then from the replay's own last result, as a node running this code would).
+
+The search budget (wall time, so the live node's cuts depend on its machine's load) answers as it did live: each
+estimation makes the searches its live run made (growth.SearchBudget). --budget S instead gives each estimation a
+budget of S wall seconds of this machine (0: none), to see what the same inputs give with more or fewer searches.
+--why ROBOT prints, at each estimation, how that robot was placed or why it was refused.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from typing import Dict, List, Optional
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
+
+import numpy as np  # noqa: E402
+
+from multirobot_map_merge import transforms as tf  # noqa: E402
+from multirobot_map_merge.estimation.features import FeatureCache  # noqa: E402
+from multirobot_map_merge.estimation.union import known_corners  # noqa: E402
+from multirobot_map_merge.pipeline import MergingPipeline  # noqa: E402
+from multirobot_map_merge.recording import read_estimations  # noqa: E402
+from multirobot_map_merge.ros.node import CACHE_SPARE  # noqa: E402
+from multirobot_map_merge.ros.params import MapMergeParams  # noqa: E402
+from replay_bag_estimation import worst_error  # noqa: E402  (scripts/, beside this one)
+
+
+def differences(names: List[str], grids, live: Dict[str, np.ndarray], replay: Dict[str, np.ndarray]) -> str:
+    """What one placed and the other did not, and the largest move between the two placements of a robot."""
+    only_live = [n for n in names if n in live and n not in replay]
+    only_replay = [n for n in names if n in replay and n not in live]
+    moves = [(tf.difference(live[n], replay[n], known_corners(g))[1], n) for n, g in zip(names, grids)
+             if n in live and n in replay and g is not None]
+    out = []
+    if only_live:
+        out.append('only live: ' + ' '.join(only_live))
+    if only_replay:
+        out.append('only replay: ' + ' '.join(only_replay))
+    if moves:
+        worst, n = max(moves)
+        if worst > 0.05:
+            out.append(f'moved {n} {worst:.2f} m')
+    return '; '.join(out) if out else 'same'
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('record')
+    ap.add_argument('--summary', help="the demo's summary.json (ground truth)")
+    ap.add_argument('--budget', type=float, default=None,
+                    help="search budget per estimation, wall s of this machine (0: none; default: as live)")
+    ap.add_argument('--own', action='store_true', help="start each estimation from the replay's own last result")
+    ap.add_argument('--until', type=int, default=None, help='stop after the estimation of this index')
+    ap.add_argument('--why', default=None, help='print how this robot was placed or refused at each estimation')
+    args = ap.parse_args(argv)
+    starts: Dict[str, tuple] = {}
+    if args.summary:
+        try:
+            summary = json.load(open(args.summary))
+        except (OSError, ValueError) as e:
+            print(f'replay_estimations: cannot read {args.summary}: {e}', file=sys.stderr)
+            return 2
+        starts = {'/' + n.strip('/'): tuple(p) for n, p in summary.get('start_poses', {}).items()}
+    settings = MapMergeParams().estimation_settings()
+    if args.budget is not None:
+        settings = settings.replace(search_budget_s=args.budget if args.budget > 0 else math.inf)
+    pipeline = MergingPipeline(settings)
+    capacity = 0
+    own: Dict[str, np.ndarray] = {}
+    own_reference: Optional[str] = None
+    why = '/' + args.why.strip('/') if args.why else None
+    try:
+        for rec in read_estimations(args.record):
+            if args.until is not None and rec.index > args.until:
+                break
+            if len(rec.names) + CACHE_SPARE != capacity:   # as the node keeps its feature cache
+                capacity = len(rec.names) + CACHE_SPARE
+                pipeline.cache = FeatureCache(capacity=capacity)
+            pipeline.feed(rec.grids)
+            reference = own_reference if args.own else rec.reference
+            previous = [own.get(n) for n in rec.names] if args.own else rec.previous
+            preferred = rec.names.index(reference) \
+                if reference in rec.names and rec.grids[rec.names.index(reference)] is not None else None
+            t0 = time.perf_counter()
+            result = pipeline.estimate(preferred_reference=preferred, previous=previous, names=rec.names,
+                                       now=rec.now, budget_script=rec.budget_verdicts if args.budget is None else None)
+            took = time.perf_counter() - t0
+            own = {n: t for n, t in zip(rec.names, result.transforms) if t is not None}
+            own_reference = rec.names[result.reference] if result.reference is not None else None
+            grid_of = dict(zip(rec.names, rec.grids))
+            print(f'#{rec.index:3d} t {rec.now:7.2f}  live {len(rec.placed):2d} placed, held {rec.held}, '
+                  f'{rec.seconds:.2f} s{worst_error(rec.placed, starts, grid_of)}\n'
+                  f'              replay {len(own):2d} placed, held {result.held}, {took:.2f} s'
+                  f'{worst_error(own, starts, grid_of)}; {differences(rec.names, rec.grids, rec.placed, own)}')
+            if why in grid_of:
+                k = rec.names.index(why)
+                for p in result.pairs:
+                    if p.i == k:
+                        print(f'      {why}: {"placed" if p.accepted else "refused"} against {rec.names[p.j]}'
+                              f' ({p.inliers} inliers, confidence {p.confidence:.2f}){": " + p.reason if p.reason else ""}')
+    except (OSError, ValueError, KeyError) as e:
+        print(f'replay_estimations: cannot read the record {args.record}: {e}', file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
