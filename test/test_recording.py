@@ -84,3 +84,22 @@ def test_a_missing_record_is_one_line_and_a_non_zero_exit(repo_root, tmp_path):
     out = replay(repo_root, str(tmp_path / 'none'))
     assert out.returncode != 0
     assert out.stderr.strip().count('\n') == 0 and 'replay_estimations' in out.stderr
+
+
+def test_exposure_matches_each_robot_left_out_onto_the_placed_ones_at_their_true_poses(repo_root, tmp_path):
+    record_chain3(repo_root, tmp_path / 'record')
+    truth = json.loads((repo_root / 'data' / 'samples' / 'chain3' / 'truth.json').read_text())
+    poses = {f'robot_{k}': m['pose'] for k, m in enumerate(truth['maps'])}
+    summary = tmp_path / 'summary.json'
+    summary.write_text(json.dumps({'start_poses': poses}))
+    out = replay(repo_root, str(tmp_path / 'record'), '--summary', str(summary), '--exposure')
+    assert out.returncode == 0, out.stderr
+    made, accepted, wrong = map(int, re.search(r'(\d+) matches .*, (\d+) accepted, (\d+) wrong', out.stdout).groups())
+    assert accepted >= 1 and wrong == 0, out.stdout   # a robot held, not published yet: its true place fits
+    # the same matches judged against a truth with robot_2 2 m away: each accepted one is off by those 2 m
+    poses['robot_2'] = [poses['robot_2'][0] + 2.0] + poses['robot_2'][1:]
+    summary.write_text(json.dumps({'start_poses': poses}))
+    out = replay(repo_root, str(tmp_path / 'record'), '--summary', str(summary), '--exposure')
+    offs = re.findall(r'/robot_2 onto \d placed: WRONG [\d.]+ deg, ([\d.]+) m off', out.stdout)
+    assert offs and all(abs(float(o) - 2.0) < 0.1 for o in offs), out.stdout
+    assert replay(repo_root, str(tmp_path / 'record'), '--exposure').returncode != 0   # no truth: one line, non-zero
