@@ -71,10 +71,15 @@ def differences(names: List[str], grids, live: Dict[str, np.ndarray], replay: Di
     return '; '.join(out) if out else 'same'
 
 
+# a placement this far off the truth is wrong (the live target: no status with a robot off by more)
+WRONG_DEG, WRONG_M = 1.0, 0.5
+
+
 def exposure(record: str, starts: Dict[str, tuple], settings) -> int:
     """--exposure: each robot not placed matched onto the union of the placed ones at their true poses."""
     res = settings.min_work_resolution
     truth = {n: tf.rigid(*p[:3]) for n, p in starts.items()}
+    cache = FeatureCache()   # a map's content recurs over estimations, onto other placed maps
     made = accepted = wrong = 0
     seen = set()
     for rec in read_estimations(record):
@@ -88,7 +93,7 @@ def exposure(record: str, starts: Dict[str, tuple], settings) -> int:
             if target is None or grid is None or n in rec.placed or n not in truth or key in seen:
                 continue
             seen.add(key)   # the same map onto the same placed maps: the same match
-            part = prepare(grid, res, settings.feature)
+            part = cache.get(grid, res, settings.feature)
             if part is None:
                 continue
             m = match_pair(k, len(rec.names), part, target, settings, onto_union=len(placed) > 1)
@@ -97,9 +102,10 @@ def exposure(record: str, starts: Dict[str, tuple], settings) -> int:
                 continue
             accepted += 1
             rot, off = tf.difference(truth[n], m.transform_m, known_corners(grid))
-            wrong += math.degrees(rot) > 1.0 or off > 0.5
+            off_target = math.degrees(rot) > WRONG_DEG or off > WRONG_M
+            wrong += off_target
             print(f'#{rec.index:3d} t {rec.now:7.2f}  {n} onto {len(placed)} placed: '
-                  f'{"WRONG" if math.degrees(rot) > 1.0 or off > 0.5 else "right"} {math.degrees(rot):.2f} deg, '
+                  f'{"WRONG" if off_target else "right"} {math.degrees(rot):.2f} deg, '
                   f'{off:.2f} m off; {m.best.support} agreeing walls, agreement {m.best.agreement:.2f}, '
                   f'{m.best.overlap_m2:.1f} m2')
     print(f'{made} matches onto the placed robots, {accepted} accepted, {wrong} wrong')
