@@ -5,7 +5,8 @@ import json
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.confirmation import HELD, STATIC_AFTER_S, hold_new, keep_standing, remember_shown
+from multirobot_map_merge.estimation.confirmation import (HELD, STATIC_AFTER_S, anchor_on_published, hold_new,
+                                                          keep_standing, remember_shown)
 from multirobot_map_merge.estimation.estimator import Estimate
 from multirobot_map_merge.estimation.memory import EstimationMemory
 from multirobot_map_merge.grid import Grid
@@ -338,3 +339,21 @@ def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_ot
         grown = [r, _free_strip(0.0, 8.0, 2.0), _free_strip(5.0, 3.0, 4.0)]
         hold_new(transforms, 0, [], published, memory, names, grown, False, check)
         assert [t is not None for t in transforms] == placed, verdicts
+
+
+def test_a_new_seed_joined_to_published_grids_waits_like_any_new_placement():
+    """r and x were published (r the reference, x 6 m along). The next estimation places them and a new grid s,
+    seeded by s (its frame). The merge moves to r's frame and s is held: s's link to them is new. x placed 2 m from
+    where it was shown relative to r is new too, and waits; as it was shown, it stands."""
+    names = ['r', 'x', 's']
+    grids = [_free_strip(0.0, 8.0, 4.0), _free_strip(0.0, 4.0, 4.0), _free_strip(0.0, 4.0, 4.0)]
+    published = [np.eye(3), tf.rigid(6.0, 0.0, 0.0), None]
+    in_s = tf.rigid(-3.0, 1.0, 0.4)   # r's map frame -> s's
+    for x_moved, shown in ((0.0, ['r', 'x']), (2.0, ['r'])):
+        result = Estimate([in_s, in_s @ tf.rigid(6.0 + x_moved, 0.0, 0.0), np.eye(3)], 2)
+        anchor_on_published(result, published, grids)
+        assert result.reference == 0 and np.allclose(result.transforms[0], np.eye(3))
+        assert np.allclose(result.transforms[2], tf.inverse(in_s))
+        hold_new(result.transforms, result.reference, result.pairs, published, EstimationMemory(), names, grids,
+                 False)
+        assert [n for n, t in zip(names, result.transforms) if t is not None] == shown

@@ -13,9 +13,11 @@ off because the other robot's map had grown away from the room (the same 19 m2 i
 later it agreed 0.85. New maps that grow together confirm only each other, not their place in the merge. Where the
 building repeats itself, maps that grow keep fitting an alias too: a placement is also judged on the merge that
 stands before it is confirmed (uniqueness.py). A
-placement in the last published merge is not held again (a change of the merged frame re-places robots already
-confirmed); one that left the merge before is, and is confirmed with a map that stands where a merge in some frame
-showed the two (memory.shown; a failed check forgets it). Only with a memory (the node): merge_maps and the offline
+placement in the last published merge is not held again where it is placed as shown relative to the reference (a
+change of the merged frame re-places robots already confirmed: still_shown); one that left the merge before is, and
+is confirmed with a map that stands where a merge in some frame showed the two (memory.shown; a failed check forgets
+it). A merge in the frame of a new map holding published ones moves to the frame of one of those, and the new map
+waits (anchor_on_published). Only with a memory (the node): merge_maps and the offline
 benchmarks estimate once.
 
 The merged frame moves only to show more robots (keep_standing): when a group without the published reference
@@ -184,6 +186,48 @@ def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Option
             memory.shown.put(names[k], {**(memory.shown.get(names[k]) or {}), names[reference]: t})
 
 
+def still_shown(transforms: Sequence[Optional[np.ndarray]], reference: Optional[int],
+                published: Optional[Sequence[Optional[np.ndarray]]], grids: Sequence[Optional[Grid]]) -> Set[int]:
+    """The placed grids published before (`published`, in the frame of then) that are placed now as they were
+    relative to the reference (within SAME_PLACE_M at their corners), the reference among them; none when the
+    reference was not published. The merged frame may have moved since; a grid placed elsewhere relative to the
+    others is a new placement, and waits like one."""
+    if reference is None or published is None or reference >= len(published) or published[reference] is None:
+        return set()
+    to_now = tf.inverse(published[reference])
+    return {k for k, t in enumerate(transforms) if t is not None and k < len(published)
+            and published[k] is not None and grids[k] is not None
+            and tf.difference(t, to_now @ published[k], known_corners(grids[k]))[1] <= SAME_PLACE_M}
+
+
+def anchor_on_published(result: 'Estimate', published: Optional[Sequence[Optional[np.ndarray]]],
+                        grids: Sequence[Optional[Grid]]) -> None:
+    """When the merge is in the frame of a grid not published before (its group's seed) and holds grids that were:
+    the merge moves (in place: `result`'s transforms and reference) to the frame of the published grid with which
+    most of the others stay as they were shown (still_shown), the largest of those. The seed joined the published
+    grids through a link made now, and is a new placement like any other (a generated warehouse replayed as a
+    growing fleet: its new seed, 4 m off along a row of racks, was published as the merge's frame with five
+    published grids around it)."""
+    reference = result.reference
+    if published is None or reference is None or (reference < len(published) and published[reference] is not None):
+        return
+    candidates = [k for k, t in enumerate(result.transforms) if t is not None and k < len(published)
+                  and published[k] is not None and grids[k] is not None]
+    if not candidates:
+        return
+
+    def shown_with(a: int) -> int:
+        to_a = tf.inverse(result.transforms[a])
+        return len(still_shown([to_a @ t if t is not None else None for t in result.transforms], a, published, grids))
+
+    anchor = max(candidates, key=lambda a: (shown_with(a), np.count_nonzero(grids[a].data >= 0)))
+    to_anchor = tf.inverse(result.transforms[anchor])
+    log.debug('the merge in the frame of grid %d, published before, not of grid %d, new', anchor, reference)
+    result.transforms = [to_anchor @ t if t is not None else None for t in result.transforms]
+    result.transforms[anchor] = np.eye(3)
+    result.reference = anchor
+
+
 def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], pairs: List[PairMatch],
              published: Optional[Sequence[Optional[np.ndarray]]], memory: EstimationMemory, names: Sequence,
              grids: Sequence[Optional[Grid]], settled: bool,
@@ -201,8 +245,7 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
     memory.held, memory.confirmed = {}, {}
     memory.held_reference = names[reference] if reference is not None else None
     placed = [k for k, t in enumerate(transforms) if t is not None]
-    standing = {k for k in placed if k == reference
-                or (published is not None and k < len(published) and published[k] is not None)}
+    standing = still_shown(transforms, reference, published, grids) | ({reference} if reference is not None else set())
     new = [k for k in placed if k not in standing]
     boxes = {k: footprint(grids[k], transforms[k]) for k in placed if grids[k] is not None} if new else {}
     common = {k: common_areas(k, transforms, grids, boxes) for k in new}

@@ -27,7 +27,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
-from .confirmation import hold_new, keep_standing, remember_shown, static_for, with_held
+from .confirmation import anchor_on_published, hold_new, keep_standing, remember_shown, static_for, with_held
 from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress, SearchBudget
 from .memory import EstimationMemory
@@ -229,6 +229,7 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
                             contents, inputs, settled, budget)
     result.budget_verdicts = budget.verdicts
     if memory is not None and names:
+        anchor_on_published(result, published, grids)
         result.held = hold_new(result.transforms, result.reference, result.pairs, published, memory, names, grids,
                                static_for(memory, settled, now),
                                StandingCheck(grids, settings, cache, working_resolution(grids, settings)))
