@@ -90,6 +90,18 @@ def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Option
     return out
 
 
+def held_tracked(memory: Optional[EstimationMemory], names: Optional[Sequence], preferred_reference: Optional[int],
+                 previous: Optional[Sequence[Optional[np.ndarray]]]) -> Set[int]:
+    """The grids whose placement in `previous` is one the last estimation held (with_held added it): tracked
+    with the published ones, but not confirmed yet."""
+    if memory is None or not memory.held or not names or previous is None or preferred_reference is None \
+            or names[preferred_reference] != memory.held_reference:
+        return set()
+    return {k for k, name in enumerate(names) if k != preferred_reference and name in memory.held
+            and k < len(previous) and previous[k] is not None
+            and np.array_equal(previous[k], memory.held[name].transform)}
+
+
 def held_in_frame(memory: EstimationMemory, reference_name) -> dict:
     """The placements the last estimation held, in the frame of grid `reference_name`: as held when it was the
     reference then; restated through its own held placement when it was held itself (a group's seed is its largest

@@ -27,7 +27,8 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from ..progress import progress_of
-from .confirmation import anchor_on_published, hold_new, keep_standing, remember_shown, static_for, with_held
+from .confirmation import (anchor_on_published, held_tracked, hold_new, keep_standing, remember_shown, static_for,
+                           with_held)
 from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress, SearchBudget
 from .memory import EstimationMemory
@@ -386,7 +387,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 and previous[preferred_reference] is not None \
                 and np.allclose(previous[preferred_reference], np.eye(3)):
             kept, checks = track(previous, preferred_reference, usable, prepared, res, settings, pool,
-                                 grower.memory, grower.names, contents)
+                                 grower.memory, grower.names, contents,
+                                 held_tracked(memory, names, preferred_reference, previous))
             if kept:
                 groups.append(grower.tracked_group(preferred_reference, kept, checks))
         tracked = len(groups[0].members) - 1 if groups else 0
