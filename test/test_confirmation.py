@@ -358,6 +358,21 @@ def test_a_new_seed_joined_to_published_grids_waits_like_any_new_placement():
                  False)
         assert [n for n, t in zip(names, result.transforms) if t is not None] == shown
 
+
+def test_a_reference_whose_map_frame_moved_gives_the_frame_to_the_published_grids_that_stayed():
+    """r (the reference), x and y were published; r's map turned (a SLAM failure), and the next estimation, seeded
+    by r again, places x and y together 20 degrees from where they were shown relative to r. The merge moves to the
+    frame of x, the larger of the two that stayed as shown, and r waits."""
+    names = ['r', 'x', 'y']
+    grids = [_free_strip(0.0, 8.0, 4.0), _free_strip(0.0, 6.0, 4.0), _free_strip(0.0, 4.0, 4.0)]
+    published = [np.eye(3), tf.rigid(6.0, 0.0, 0.0), tf.rigid(6.0, 5.0, 0.0)]
+    turn = tf.rigid(0.0, 0.0, np.radians(20.0))
+    result = Estimate([np.eye(3), turn @ published[1], turn @ published[2]], 0)
+    anchor_on_published(result, published, grids)
+    assert result.reference == 1 and np.allclose(result.transforms[2], tf.inverse(published[1]) @ published[2])
+    hold_new(result.transforms, result.reference, result.pairs, published, EstimationMemory(), names, grids, False)
+    assert [n for n, t in zip(names, result.transforms) if t is not None] == ['x', 'y']
+
 def test_a_held_alias_does_not_push_a_right_robot_out_of_the_merge(repo_root):
     """The first 11 estimations of a live 12-robot run (seed 1; test/data/demo12_held_alias, a record of
     recording.py), estimated again as the node does but without a search budget. At 25.2 sim s robots 5 and 7 fit

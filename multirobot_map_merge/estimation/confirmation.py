@@ -199,42 +199,53 @@ def remember_shown(transforms: Sequence[Optional[np.ndarray]], reference: Option
 
 
 def still_shown(transforms: Sequence[Optional[np.ndarray]], reference: Optional[int],
-                published: Optional[Sequence[Optional[np.ndarray]]], grids: Sequence[Optional[Grid]]) -> Set[int]:
+                published: Optional[Sequence[Optional[np.ndarray]]], grids: Sequence[Optional[Grid]],
+                corners: Optional[Dict[int, np.ndarray]] = None) -> Set[int]:
     """The placed grids published before (`published`, in the frame of then) that are placed now as they were
     relative to the reference (within SAME_PLACE_M at their corners), the reference among them; none when the
     reference was not published. The merged frame may have moved since; a grid placed elsewhere relative to the
-    others is a new placement, and waits like one."""
-    if reference is None or published is None or reference >= len(published) or published[reference] is None:
+    others is a new placement, and waits like one. `corners`: union.known_corners of the grids, when known."""
+    if reference is None or published is None or reference >= len(published) or published[reference] is None \
+            or transforms[reference] is None:
         return set()
-    to_now = tf.inverse(published[reference])
-    return {k for k, t in enumerate(transforms) if t is not None and k < len(published)
-            and published[k] is not None and grids[k] is not None
-            and tf.difference(t, to_now @ published[k], known_corners(grids[k]))[1] <= SAME_PLACE_M}
+    corners = corners if corners is not None else {}
+    to_now = transforms[reference] @ tf.inverse(published[reference])
+    out = set()
+    for k, t in enumerate(transforms):
+        if t is None or k >= len(published) or published[k] is None or grids[k] is None:
+            continue
+        if k not in corners:
+            corners[k] = known_corners(grids[k])
+        if tf.difference(t, to_now @ published[k], corners[k])[1] <= SAME_PLACE_M:
+            out.add(k)
+    return out
 
 
 def anchor_on_published(result: 'Estimate', published: Optional[Sequence[Optional[np.ndarray]]],
                         grids: Sequence[Optional[Grid]]) -> None:
-    """When the merge is in the frame of a grid not published before (its group's seed) and holds grids that were:
-    the merge moves (in place: `result`'s transforms and reference) to the frame of the published grid with which
-    most of the others stay as they were shown (still_shown), the largest of those. The seed joined the published
-    grids through a link made now, and is a new placement like any other (a generated warehouse replayed as a
-    growing fleet: its new seed, 4 m off along a row of racks, was published as the merge's frame with five
-    published grids around it)."""
+    """Keep the merge in the frame of a published grid placed as most of the others stay as they were shown
+    (still_shown): when the merge's reference was not published before (its group's seed) and grids that were are
+    placed, or when it was but fewer of them stay as shown relative to it than to another one (its map frame
+    moved: a SLAM failure turned it), the merge moves (in place: `result`'s transforms and reference) to the frame
+    of the largest published grid with the most. The reference left is a new placement like any other: a seed
+    joined the published grids through a link made now (a generated warehouse replayed as a growing fleet: its new
+    seed, 4 m off along a row of racks, was published as the merge's frame with five published grids around it)."""
     reference = result.reference
-    if published is None or reference is None or (reference < len(published) and published[reference] is not None):
+    if published is None or reference is None:
         return
     candidates = [k for k, t in enumerate(result.transforms) if t is not None and k < len(published)
                   and published[k] is not None and grids[k] is not None]
     if not candidates:
         return
-
-    def shown_with(a: int) -> int:
-        to_a = tf.inverse(result.transforms[a])
-        return len(still_shown([to_a @ t if t is not None else None for t in result.transforms], a, published, grids))
-
-    anchor = max(candidates, key=lambda a: (shown_with(a), np.count_nonzero(grids[a].data >= 0)))
+    corners: Dict[int, np.ndarray] = {}
+    shown = {a: len(still_shown(result.transforms, a, published, grids, corners)) for a in candidates}
+    most = max(shown.values())
+    if shown.get(reference) == most:
+        return
+    anchor = max((a for a in candidates if shown[a] == most), key=lambda a: np.count_nonzero(grids[a].data >= 0))
     to_anchor = tf.inverse(result.transforms[anchor])
-    log.debug('the merge in the frame of grid %d, published before, not of grid %d, new', anchor, reference)
+    log.debug('the merge in the frame of grid %d, not of grid %d: %d published grids placed as shown', anchor,
+              reference, most)
     result.transforms = [to_anchor @ t if t is not None else None for t in result.transforms]
     result.transforms[anchor] = np.eye(3)
     result.reference = anchor
