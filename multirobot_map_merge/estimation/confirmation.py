@@ -73,13 +73,19 @@ def static_for(memory: EstimationMemory, settled: bool, now: Optional[float]) ->
     return settled and now - memory.unchanged_since >= STATIC_AFTER_S
 
 
+def tracks_held(memory: Optional[EstimationMemory], names: Optional[Sequence],
+                preferred_reference: Optional[int]) -> bool:
+    """Whether this estimation tracks the placements the last one held: it had the same reference."""
+    return memory is not None and bool(memory.held) and bool(names) and preferred_reference is not None \
+        and names[preferred_reference] == memory.held_reference
+
+
 def with_held(previous: Optional[Sequence[Optional[np.ndarray]]], memory: Optional[EstimationMemory],
               names: Optional[Sequence], preferred_reference: Optional[int],
               count: int) -> Optional[List[Optional[np.ndarray]]]:
     """The placements to track: the published ones (`previous`) and those held by the last estimation, when that
     one had the same reference; `previous` as it is otherwise."""
-    if memory is None or not memory.held or not names or preferred_reference is None \
-            or names[preferred_reference] != memory.held_reference:
+    if not tracks_held(memory, names, preferred_reference):
         return previous
     out = list(previous) if previous is not None and len(previous) == count else [None] * count
     if out[preferred_reference] is None:
@@ -94,8 +100,7 @@ def held_tracked(memory: Optional[EstimationMemory], names: Optional[Sequence], 
                  previous: Optional[Sequence[Optional[np.ndarray]]]) -> Set[int]:
     """The grids whose placement in `previous` is one the last estimation held (with_held added it): tracked
     with the published ones, but not confirmed yet."""
-    if memory is None or not memory.held or not names or previous is None or preferred_reference is None \
-            or names[preferred_reference] != memory.held_reference:
+    if previous is None or not tracks_held(memory, names, preferred_reference):
         return set()
     return {k for k, name in enumerate(names) if k != preferred_reference and name in memory.held
             and k < len(previous) and previous[k] is not None
@@ -238,6 +243,9 @@ def anchor_on_published(result: 'Estimate', published: Optional[Sequence[Optiona
     if not candidates:
         return
     corners: Dict[int, np.ndarray] = {}
+    if reference in candidates \
+            and len(still_shown(result.transforms, reference, published, grids, corners)) == len(candidates):
+        return   # the usual case: every published grid stays as shown relative to the reference
     shown = {a: len(still_shown(result.transforms, a, published, grids, corners)) for a in candidates}
     most = max(shown.values())
     if shown.get(reference) == most:
