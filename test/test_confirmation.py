@@ -326,8 +326,11 @@ def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_ot
     for verdicts, placed in cases:
         judged = []
 
-        def check(k, transform, standing, settled):
-            assert set(standing) == {0} and not settled
+        def check(k, transform, standing, settled, keep=40):
+            if settled:   # the second look, with the grids confirmed now (second_look's test)
+                assert set(standing) == {0, 1, 2} - {k}
+                return ''
+            assert set(standing) == {0}
             judged.append(k)
             return verdicts[k]
 
@@ -339,6 +342,42 @@ def test_a_new_placement_is_confirmed_only_where_the_merge_that_stands_has_no_ot
         grown = [r, _free_strip(0.0, 8.0, 2.0), _free_strip(5.0, 3.0, 4.0)]
         hold_new(transforms, 0, [], published, memory, names, grown, False, check)
         assert [t is not None for t in transforms] == placed, verdicts
+
+
+def test_grids_confirmed_together_are_judged_again_on_the_merge_they_make():
+    """r stands; b (held) meets r, c (held) meets only b, and both grow so that both are confirmed (the tests
+    above). Judged again on r and the other one confirmed now (where a rival counts when it is as good: settled), a
+    rival place for c refuses c alone; b contradicting that merge refuses c, placed with it; c not judged there
+    confirms both. A grid confirmed alone is not judged again."""
+    from multirobot_map_merge.estimation.uniqueness import CONTRADICTS
+
+    names = ['r', 'b', 'c']
+    published = [np.eye(3), None, None]
+    r = _free_strip(0.0, 4.0, 4.0)
+    rival = 'another place on the merge that stands agrees 1.00'
+    cases = (({1: '', 2: ''}, {1: '', 2: rival}, [True, True, False]),
+             ({1: '', 2: ''}, {1: f'{CONTRADICTS}: agreement 0.80', 2: ''}, [True, False, False]),
+             ({1: '', 2: ''}, {1: '', 2: None}, [True, True, True]),
+             ({1: '', 2: rival}, {}, [True, True, False]))
+    for first, again, placed in cases:
+        judged_again = []
+
+        def check(k, transform, standing, settled, keep=40):
+            if not settled:
+                assert set(standing) == {0}
+                return first[k]
+            assert set(standing) == {0, 1, 2} - {k}
+            judged_again.append(k)
+            return again[k]
+
+        memory = EstimationMemory()
+        assert hold_new([np.eye(3)] * 3, 0, [], published, memory, names,
+                        [r, _free_strip(2.0, 2.0, 2.0), _free_strip(6.0, 2.0, 2.0)], False, check) == 2
+        transforms = [np.eye(3)] * 3
+        grown = [r, _free_strip(0.0, 8.0, 2.0), _free_strip(5.0, 3.0, 4.0)]
+        hold_new(transforms, 0, [], published, memory, names, grown, False, check)
+        assert [t is not None for t in transforms] == placed, (first, again)
+        assert judged_again == sorted(again), (first, again)
 
 
 def test_a_new_seed_joined_to_published_grids_waits_like_any_new_placement():

@@ -36,6 +36,7 @@ from .verify import too_contradicted, verify
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.uniqueness')
 
 RIVAL_SHARE = 0.3
+RIVAL_KEEP = 40       # a rival searched among this many of the search's best places (pair.find_rival's keep)
 CROP_MARGIN_M = 0.5   # around the part of a grid that lands on the standing union's known area
 WHOLE_SHARE = 0.9     # a part this large of the grid's known area is the grid: its own search said it all
 CONTRADICTS = 'contradicts the merge that stands'
@@ -61,11 +62,12 @@ class StandingCheck:
         return self._unions[key]
 
     def __call__(self, k: int, transform: np.ndarray, standing: Dict[int, np.ndarray],
-                 settled: bool = False) -> Optional[str]:
+                 settled: bool = False, keep: int = RIVAL_KEEP) -> Optional[str]:
         """Why grid k, placed by `transform` (metric, the frame of the standing grids' transforms), is not
         confirmed on the union of the `standing` grids: '' if nothing speaks against it, None if it shares too little
         with it to be judged there. With `settled` (maps that no longer change: waiting tells nothing more), a rival
-        counts only when it is as good as the placement (pair.as_good), as for a pair."""
+        counts only when it is as good as the placement (pair.as_good), as for a pair. Rivals are searched among
+        the `keep` best places of the search."""
         union = self._union(standing)
         part = self.cache.get(self.grids[k], self.res, self.s.feature)
         if union is None or part is None:
@@ -80,14 +82,14 @@ class StandingCheck:
                     f'{best.deep_conflicts} contradicting walls well inside both')
         # a rival counts from RIVAL_SHARE of the support here, below the support a pair needs
         loose = self.s.replace(min_support=max(int(RIVAL_SHARE * best.support), 1))
-        rival = find_rival(part, union, best, loose, enough=(lambda c: as_good(c, best, self.s)) if settled
+        rival = find_rival(part, union, best, loose, keep, enough=(lambda c: as_good(c, best, self.s)) if settled
                            else (lambda c: c.support >= RIVAL_SHARE * best.support))
         if rival is not None:
             return (f'another place on the merge that stands agrees {rival.agreement:.2f} with support '
                     f'{rival.support} (here {best.support})')
-        return self._part_elsewhere(k, transform, union)
+        return self._part_elsewhere(k, transform, union, keep)
 
-    def _part_elsewhere(self, k: int, transform: np.ndarray, union: PreparedGrid) -> str:
+    def _part_elsewhere(self, k: int, transform: np.ndarray, union: PreparedGrid, keep: int) -> str:
         """Why the part of grid k that lands on the union's known area fits another place of the union as well
         (pair.as_good): '' if it does not. The rest of the grid lies where the union knows nothing, so it neither
         supports nor contradicts the placement; if the shared part is a pattern the union repeats (a corridor
@@ -106,7 +108,7 @@ class StandingCheck:
         if shared is None:
             return ''
         best = verify(shared, union, tf.inverse(union.px_to_map) @ transform @ shared.px_to_map, self.s)
-        rival = find_rival(shared, union, best, self.s, enough=lambda c: as_good(c, best, self.s))
+        rival = find_rival(shared, union, best, self.s, keep, enough=lambda c: as_good(c, best, self.s))
         if rival is None:
             return ''
         return (f'the part of it on the merge that stands fits another place as well: agreement '
