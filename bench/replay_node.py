@@ -3,6 +3,7 @@
 
     scripts/env.sh python bench/replay_node.py [--until 90] [--reveal 60] [--step S] [--threads N]
         [--opencv-threads N] [--processes] [--search-budget S] [--data DIR | --generated [NAMES]]
+        [--save-budget FILE] [--budget-from FILE]
 
 The 30-map scenario (../shared/data/dev/large30_hospital_section) revealed as bench_node publishes it (bench/reveal.py:
 2 m tiles, nearest to each robot's start first, all known after --reveal s), estimated as the node estimates it (its
@@ -20,11 +21,15 @@ What bench_node measures live comes with its noise (the same code: median 2.5-3.
 the publisher and roscore on the same two cores); with --step the same maps are estimated at the same times in every
 run, so two revisions or settings can be compared on their CPU time, and every estimation is scored. Their
 results still differ a little from run to run: the node's search budget is wall time (--search-budget inf: none,
-the same results in every run, and the first estimations take half a minute each).
+the same results in every run, and the first estimations take half a minute each). --save-budget FILE writes the
+search budget's answers of every estimation, and --budget-from FILE gives another run (another revision, the same
+--step) those answers (growth.SearchBudget: beyond them the clock answers), so that two revisions are compared on
+the same searches.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -50,7 +55,18 @@ def main() -> int:
                                                         'node\'s; inf: no limit)')
     ap.add_argument('--generated', nargs='?', const='buildings', metavar='NAMES',
                     help="the generated buildings instead of --data (default: all of them)")
+    ap.add_argument('--save-budget', type=Path, metavar='FILE',
+                    help='write the search budget\'s answers of every estimation into FILE (JSON)')
+    ap.add_argument('--budget-from', type=Path, metavar='FILE',
+                    help='answer the search budget as in FILE (--save-budget of another run, the same --step)')
     args = ap.parse_args()
+    if args.budget_from is not None and not args.step:
+        sys.exit('replay_node: --budget-from needs --step (else the clock depends on the wall time)')
+    try:
+        args.budgets = json.loads(args.budget_from.read_text()) if args.budget_from is not None else {}
+    except (OSError, ValueError) as e:
+        sys.exit(f'replay_node: cannot read {args.budget_from}: {e}')
+    args.saved = {}
     score = scorer()
     if score is None:
         sys.exit('replay_node: ../shared/eval/score.py not found: nothing to score')
@@ -58,6 +74,7 @@ def main() -> int:
         if not (args.data / 'truth.json').is_file():
             sys.exit(f'replay_node: {args.data}/truth.json not found (--data)')
         replay(args.data, args, score)
+        save_budget(args)
         return 0
     cache = bench_merge.REPO / 'out' / 'bench'
     rows = []
@@ -69,7 +86,13 @@ def main() -> int:
         print(f'  {name}: {wrong_estimations} of {count}; ' + ('; '.join(f'{f} {r:.2f} deg {c:.1f} cells'
                                                                         for f, r, c in last) or 'none'))
     print(f'all: {sum(r[2] for r in rows)} of {sum(r[1] for r in rows)} estimations')
+    save_budget(args)
     return 0
+
+
+def save_budget(args: argparse.Namespace) -> None:
+    if args.save_budget is not None:
+        args.save_budget.write_text(json.dumps(args.saved))
 
 
 def replay(data: Path, args: argparse.Namespace, score) -> Tuple[int, int, list]:
@@ -95,11 +118,14 @@ def replay(data: Path, args: argparse.Namespace, score) -> Tuple[int, int, list]
           f'{"every %g s" % args.step if args.step else "one estimation after the other"}; '
           f'threads {settings.threads}, processes {settings.processes}; {bench_merge.machine.describe()}')
     clock, walls, cpus, wrong_estimations, wrong = 0.0, [], [], 0, []
+    scripts, answers = args.budgets.get(data.name, []), args.saved.setdefault(data.name, [])
     while clock < args.until:
         share = clock / args.reveal if args.reveal > 0 else 1.0
         pipeline.feed(revealed_grids(grids, orders, share))
         wall, cpu = time.perf_counter(), time.process_time()
-        found = pipeline.estimate(previous=pipeline.transforms or None, names=names, now=clock)
+        script = scripts[len(walls)] if len(walls) < len(scripts) else None
+        found = pipeline.estimate(previous=pipeline.transforms or None, names=names, now=clock, budget_script=script)
+        answers.append(list(found.budget_verdicts))
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         walls.append(wall)
         cpus.append(cpu)
