@@ -58,8 +58,9 @@ CONFIRM_GROWTH_M2 = 4.0
 # each is judged again on the merge they make (second_look): less adds little that its first judgement did not see
 LOOK_AGAIN_SHARE = 0.25
 # the search's best places among which the second look searches a rival as good as the place: such a rival ranks
-# high (second_look's office36 case: 1st of 32; 7th for another), and a look costs 0.6 of a search of all 40
-# (the first look's): the 30-map replay (bench/replay_node.py) judges 13 grids again in one estimation
+# high (second_look's office36 case: 1st of 32; 7th for another), and a look costs 0.6 of a search of all
+# pair.RIVAL_PLACES (the first look's): the 30-map replay (bench/replay_node.py) judges 13 grids again in one
+# estimation
 LOOK_AGAIN_KEEP = 12
 
 
@@ -308,12 +309,9 @@ def hold_new(transforms: List[Optional[np.ndarray]], reference: Optional[int], p
         if check is None:
             return ''
         if k not in verdicts:
-            verdicts[k] = ''
-            why = check(k, transforms[k], base, settled)
-            if why:
-                refuse(k, why)
-            elif why is None:
-                verdicts[k] = None
+            verdicts[k] = check(k, transforms[k], base, settled)
+            if verdicts[k]:
+                refuse(k, verdicts[k])
         return verdicts[k]
 
     looked: Set[int] = set()
@@ -352,6 +350,8 @@ def second_look(judged: Set[int], confirmed: Set[int], base: Dict[int, np.ndarra
     generated office36 replayed as a growing fleet: eight maps confirmed together on the one map that stood, one of
     them 180 degrees and 34 m off; on the merge they made it fitted its true place as well, 1406 agreeing walls
     against 1840, and the nine took the merge over from the nine published before)."""
+    if not judged or len(confirmed) < 2:
+        return   # the usual estimation: nothing, or one grid, confirmed
     known = {m: np.count_nonzero(grids[m].data >= 0) for m in set(base) | confirmed if grids[m] is not None}
     standing = sum(known.get(m, 0) for m in base)
     for k in sorted(judged):

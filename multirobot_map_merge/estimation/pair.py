@@ -38,6 +38,7 @@ LIGHT_ICP_POINTS = 400  # walls of the ICP that brings a turned placement in bef
 RESCUE_PLACES = 3       # distinct places polished when no candidate is plausible (see rescued)
 RESCUE_SINGLE = 1       # places polished when a search of a single grid found no candidate that passes
 OTHER_PLACES = 3        # distinct places besides the best kept in metric form (PairMatch.other_places_m)
+RIVAL_PLACES = 40       # best places of find_rival's search refined, by default
 SEARCH_POSTPONED = 'search postponed: the search budget of this estimation is spent'
 # a join of two groups is refused beside a distinct place where their unions overlap with this many times its
 # support and contradict (overlap_found): on the generated 36-map buildings (seeds 0-8) the hospital's wings of
@@ -96,7 +97,7 @@ def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) 
 
 
 def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: EstimationSettings,
-               keep: int = 40, enough: Optional[Callable[[Placement], bool]] = None) -> Optional[Placement]:
+               keep: int = RIVAL_PLACES, enough: Optional[Callable[[Placement], bool]] = None) -> Optional[Placement]:
     """Another place for grid i on grid j that passes the rules of `plausible` (not the precision rule), however
     much smaller its common area, searched by correlation away from `best` (`keep` candidates refined); with
     `enough`, the first such place that it also finds enough.

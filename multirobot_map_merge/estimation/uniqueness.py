@@ -28,7 +28,7 @@ import numpy as np
 from .. import transforms as tf
 from ..grid import Grid
 from .features import FeatureCache, PreparedGrid, prepare
-from .pair import as_good, find_rival
+from .pair import RIVAL_PLACES, as_good, find_rival
 from .settings import EstimationSettings
 from .union import UnionMap
 from .verify import too_contradicted, verify
@@ -36,7 +36,6 @@ from .verify import too_contradicted, verify
 log = logging.getLogger('rosout.multirobot_map_merge.estimation.uniqueness')
 
 RIVAL_SHARE = 0.3
-RIVAL_KEEP = 40       # a rival searched among this many of the search's best places (pair.find_rival's keep)
 CROP_MARGIN_M = 0.5   # around the part of a grid that lands on the standing union's known area
 WHOLE_SHARE = 0.9     # a part this large of the grid's known area is the grid: its own search said it all
 CONTRADICTS = 'contradicts the merge that stands'
@@ -62,7 +61,7 @@ class StandingCheck:
         return self._unions[key]
 
     def __call__(self, k: int, transform: np.ndarray, standing: Dict[int, np.ndarray],
-                 settled: bool = False, keep: int = RIVAL_KEEP) -> Optional[str]:
+                 settled: bool = False, keep: int = RIVAL_PLACES) -> Optional[str]:
         """Why grid k, placed by `transform` (metric, the frame of the standing grids' transforms), is not
         confirmed on the union of the `standing` grids: '' if nothing speaks against it, None if it shares too little
         with it to be judged there. With `settled` (maps that no longer change: waiting tells nothing more), a rival
