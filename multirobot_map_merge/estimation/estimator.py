@@ -35,6 +35,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
+from .side_groups import remember, search_side_groups
 from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
 from .uniqueness import StandingCheck
@@ -104,6 +105,8 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             # places); its other members that join the merge by descriptors do, the rest regroup by descriptors
             # without it and try again as groups (a cluster not overlapping the merge yet: 8 searches in vain
             # when tried one by one); the seeds and what regroups alone are searched one by one
+            for g in merged[1:]:
+                remember(grower.side_groups, g.members)
             rest = [k for g in merged[1:] for k in g.members if k != g.seed]
             grower.grow(main, rest, search=False)
             tried = grower.merge_groups([main] + descriptor_groups(grower, rest, settle=False), alone)
@@ -135,6 +138,7 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
             if group in holder:
                 holder.remove(group)
         members = list(group.members)
+        remember(grower.side_groups, group.members)
         grower.grow(merge, members)
         groups += [grower.group(k, settle=False) for k in members]
     return done + groups
@@ -423,6 +427,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 chosen = largest()
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
+            if search_side_groups(grower, chosen):
+                grower.search_left_out(chosen)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)

@@ -183,6 +183,7 @@ class Grower:
         self.left_out_members: frozenset = frozenset()
         self.left_out_evicted: set = set()
         self.left_out_footprints: Dict[int, Box] = {}
+        self.side_groups: List[Dict[int, np.ndarray]] = []   # groups taken apart (side_groups.py)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has

@@ -1,0 +1,129 @@
+"""The groups that never joined the merge, placed onto it as a whole at the end of an estimation.
+
+The growth takes apart a group whose union the merge refuses (estimator.search_grow): its members are then matched
+and searched one by one. In a repetitive building a map at the end of a chain shares a few rooms with the merge, and
+a few rooms fit an alias as well as the truth (the generated hospital36: maps 24-26, placed alone onto the final
+merge, fit an alias at agreement 1.00 with more support than the truth has), so each stays out, by the share it
+must have with the merge (growth.LEFT_OUT_SHARE). The union of their group, placed where the end's search put one
+of them right, agrees with the merge by several of them: what the chain shares with it together tells where it is. And the join of the group's union that
+the growth refused was refused beside the alias of the whole wing (the unions overlap elsewhere, far more, and
+contradict: pair.match_pair's between_groups), a rule for two groups that may hold a broken map each.
+
+So the members of such a group that are still left out at the end are placed together, as the union they made
+(their placements in it as the group had them), where the end's search of one of them placed that member
+(growth.search_left_out: it passed the rules of a pair, short of the share). They join there when the union passes
+the rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge and
+contradict none (eviction.judge_members), more than the members the merge contradicts, and a search of the union
+finds no place as good elsewhere (pair.find_rival, pair.as_good). A broken map placed by one fitting part meets the
+merge by that part alone; a group meets it by several maps that agree. In hospital36 six of the seven members of
+the chain meet the merge where the search of map_24 put them, the seventh (map_25) contradicts a merge member by
+its thin common walls (19 m2; the two maps agree at the truth).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .. import transforms as tf
+from .eviction import MIN_AGREEING, judge_members
+from .pair import PairMatch, as_good, find_rival
+from .refine import icp
+from .union import footprint
+from .verify import pair_confidence, same_place
+
+log = logging.getLogger('rosout.' + __name__)
+
+MEETING = 2   # members of a side group that must each agree with MIN_AGREEING members of the merge where it joins
+
+
+def remember(side_groups: List[Dict[int, np.ndarray]], members: Dict[int, np.ndarray]) -> None:
+    """Keep a group's placements (grid -> transform into its frame) before it is taken apart."""
+    if len(members) > 1:
+        side_groups.append({k: np.array(t, float) for k, t in members.items()})
+
+
+def search_side_groups(grower, group) -> int:
+    """Place the side groups the growth took apart (grower.side_groups) onto the merge `group`, their members still
+    left out (not evicted) together: see the module. Returns how many grids joined."""
+    joined = 0
+    tried: set = set()
+    for side in sorted(grower.side_groups, key=len, reverse=True):
+        left = sorted(k for k in side if k not in group.members and k not in grower.evicted
+                      and grower.prepared[k] is not None)
+        if len(left) < 2 or frozenset(left) in tried:
+            continue
+        tried.add(frozenset(left))
+        them = _union_of(grower, side, left)
+        m = _placed(grower, group, them)
+        if m is None:
+            continue
+        group.absorb(them, m.transform_m, m)
+        for k in left:
+            grower.refused.pop(k, None)
+        grower.settle(len(left))
+        joined += len(left)
+    return joined
+
+
+def _placed(grower, group, them) -> Optional[PairMatch]:
+    """The match that places the union of `them` onto the merge `group`, if one does by the rules of the module."""
+    part, union, s = them.union.prepared(), group.union.prepared(), grower.s
+    rng = np.random.default_rng(s.seed + them.seed)
+    places: List[np.ndarray] = []
+    for k, t in them.members.items():
+        m = grower.left_out_matches.get(k)
+        if m is None or not m.accepted or m.j != group.seed:
+            continue
+        # where the member's own search puts the union, refined on the union's walls (a member's small common
+        # area can leave it a little turned)
+        px = icp(part, union, tf.inverse(union.px_to_map) @ m.transform_m @ tf.inverse(t) @ part.px_to_map, s, rng)
+        if not any(same_place(px, p, part) for p in places):
+            places.append(px)
+    for px in places:
+        place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
+        c = grower._passes_onto(part, union, place)
+        if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
+            continue
+        meeting, contradicted = _meeting(grower, group, them, place)
+        if len(meeting) < MEETING or len(meeting) <= len(contradicted):
+            continue
+        rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
+        log.debug('side group %s %s: the union placed where member searches put it (agreement %.2f, support %d), '
+                  'members %s each agreeing with members of the merge%s', sorted(them.members),
+                  'stays out' if rival is not None else 'joins the merge', c.agreement, c.support, meeting,
+                  f'; a place as good elsewhere (agreement {rival.agreement:.2f}, support {rival.support})'
+                  if rival is not None else '')
+        if rival is not None:
+            return None
+        m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
+        m.confidence = pair_confidence(m.inliers, m.matches)
+        m.transform_m = place
+        return m
+    return None
+
+
+def _union_of(grower, side: Dict[int, np.ndarray], left: Sequence[int]):
+    """A group of the grids `left`, placed as in `side`, in the frame of the first."""
+    them = grower.group(left[0], settle=False)
+    to_first = tf.inverse(side[left[0]])
+    for k in left[1:]:
+        them.union.add(k, grower.grids[k], grower.prepared[k], to_first @ side[k])
+    return them
+
+
+def _meeting(grower, group, them, to_merge: np.ndarray) -> Tuple[List[int], List[int]]:
+    """(meeting, contradicted): the members of `them` that agree with MIN_AGREEING members of the merge and
+    contradict none at the union's placement `to_merge`, and those that contradict one."""
+    meeting, contradicted = [], []
+    for k, t in them.members.items():
+        placed = to_merge @ t
+        agreeing, contradicting = judge_members(k, placed, group.members, group.union.footprints,
+                                                footprint(grower.grids[k], placed), grower.prepared, grower.s,
+                                                strict=False, verified=grower.judged)
+        if contradicting:
+            contradicted.append(k)
+        elif len(agreeing) >= MIN_AGREEING:
+            meeting.append(k)
+    return meeting, contradicted

@@ -1,0 +1,71 @@
+"""side_groups.py: maps that each share too little with the merge to join alone, but made a group before the growth
+took it apart, join together where the end's search placed one of them, when several of them agree with the merge."""
+import numpy as np
+
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.estimation import side_groups
+from multirobot_map_merge.estimation.side_groups import remember, search_side_groups
+from test_eviction import _merge_of, seen, stubbed_building
+
+CORNERS = np.array([[0.0, 0.0], [15.0, 10.0]])
+
+
+def _hall(side_maps):
+    """The merge of three maps of the west of the hall (maps 0-2) and the maps `side_maps` (each x0, x1 in pixels)
+    that a side group held at their true places, their own searches made (search_left_out)."""
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150)]
+    grids += [seen(world, c0, c1) for c0, c1 in side_maps]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    remember(grower.side_groups, {k: np.eye(3) for k in range(3, len(grids))})
+    assert grower.search_left_out(group) == 0   # each shares less than half its area with the merge
+    return grower, group
+
+
+def test_a_side_group_whose_maps_each_share_too_little_joins_where_several_agree_with_the_merge():
+    grower, group = _hall([(90, 260), (100, 300)])
+    assert 3 in grower.left_out_matches   # its search placed it, short of the share
+    assert search_side_groups(grower, group) == 2
+    assert sorted(group.members) == [0, 1, 2, 3, 4]
+    for k in (3, 4):
+        rot, shift = tf.difference(group.members[k], np.eye(3), CORNERS)
+        assert rot < 0.01 and shift < 0.1
+    assert search_side_groups(grower, group) == 0   # nothing left out
+
+
+def test_a_side_group_that_meets_the_merge_by_one_map_stays_out(monkeypatch):
+    """Map 4 lies beyond the merge: only map 3 agrees with its members (as a broken map's one fitting part would).
+    Its search placed map 3 right, and the union passes the rules of a pair there: one map's word is not enough."""
+    grower, group = _hall([(90, 260), (200, 300)])
+    assert search_side_groups(grower, group) == 0
+    assert sorted(group.members) == [0, 1, 2]
+    monkeypatch.setattr(side_groups, 'MEETING', 1)
+    assert search_side_groups(grower, group) == 2
+
+
+def test_only_groups_of_two_or_more_are_remembered():
+    kept = []
+    remember(kept, {3: np.eye(3)})
+    remember(kept, {3: np.eye(3), 4: tf.rigid(1.0, 0.0, 0.0)})
+    assert len(kept) == 1 and np.allclose(kept[0][4], tf.rigid(1.0, 0.0, 0.0))
+
+
+def test_a_side_group_that_fits_as_well_one_room_along_stays_out(monkeypatch):
+    """A corridor of identical rooms: the merge saw rooms 1-6, the side group rooms 4-9 (its maps 4-7 and 5-9), and
+    a member's search placed one of them right. Its union agrees with the merge there, and as well one room along
+    (the rooms are alike and the corridor's end lies where the merge knows nothing): it stays out."""
+    from test_group_joins import ROOM, corridor_of_rooms
+    from test_group_joins import seen as seen_rooms
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.grid import Grid
+    world = corridor_of_rooms(10)
+    spans = [(0, 6), (0, 4), (2, 6), (3, 7), (4, 9)]
+    grids = [Grid(seen_rooms(world, a * ROOM, b * ROOM + 1), 0.05) for a, b in spans]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    remember(grower.side_groups, {3: np.eye(3), 4: np.eye(3)})
+    m = PairMatch(3, group.seed, accepted=True)
+    m.transform_m = np.eye(3)
+    grower.left_out_matches[3] = m
+    assert search_side_groups(grower, group) == 0
+    monkeypatch.setattr(side_groups, 'find_rival', lambda *args, **kwargs: None)
+    assert search_side_groups(grower, group) == 2
