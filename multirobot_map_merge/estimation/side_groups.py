@@ -5,9 +5,10 @@ and searched one by one. In a repetitive building a map at the end of a chain sh
 a few rooms fit an alias as well as the truth (the generated hospital36: maps 24-26, placed alone onto the final
 merge, fit an alias at agreement 1.00 with more support than the truth has), so each stays out, by the share it
 must have with the merge (growth.LEFT_OUT_SHARE). The union of their group, placed where the end's search put one
-of them right, agrees with the merge by several of them: what the chain shares with it together tells where it is. And the join of the group's union that
-the growth refused was refused beside the alias of the whole wing (the unions overlap elsewhere, far more, and
-contradict: pair.match_pair's between_groups), a rule for two groups that may hold a broken map each.
+of them right, agrees with the merge by several of them: what the chain shares with it together tells where it
+is. The join of that union that the growth refused was refused beside the alias of the whole wing (the unions
+overlap elsewhere, far more, and contradict: pair.match_pair's between_groups), a rule for two groups that may each
+hold a broken map; the search of the union onto the final merge found that alias or the truth by its random draws.
 
 So the members of such a group that are still left out at the end are placed together, as the union they made
 (their placements in it as the group had them), where the end's search of one of them placed that member
