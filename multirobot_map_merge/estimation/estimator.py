@@ -35,6 +35,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
+from .searched_again import search_placed_again
 from .side_groups import remember, search_side_groups
 from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
@@ -427,7 +428,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 chosen = largest()
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
-            if search_side_groups(grower, chosen):
+            if search_side_groups(grower, chosen) | bool(search_placed_again(grower, chosen)):
                 grower.search_left_out(chosen)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them

@@ -1,0 +1,81 @@
+"""The members a correlation search placed, searched again onto the final merge without them.
+
+A search takes the best place on the union as it was then. A small map of a building of alike shops can fit a
+place half a turn away over its whole area (a generated mall not among the benchmarks: map_00, 69 m2, agreement
+0.97, 703 agreeing walls), while at the truth the union of that moment shares its open floor but almost no walls
+(7): the search places it at the alias, by the rules of a pair. The maps that join later see the truth: on the
+final merge the same search places it right (agreement 1.00, 790 walls) and the alias ranks below. Tracking's check
+of the searched placements (Grower.confirm_searches) does not see it: the members near the alias agree with it.
+
+So at the end of an estimation afresh each member a search placed is searched again, by the search of the maps
+left out (growth.search_left_out: distinct places), onto the union of the other members. Where that search accepts
+a place distinct from the member's, the member moves there when that place passes search_left_out's rules (the
+share of its area, members agreeing, none contradicting), and leaves the merge otherwise.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import List
+
+from .. import transforms as tf
+from .eviction import MIN_AGREEING, judge_members
+from .union import UnionMap, footprint
+from .verify import distinct
+from .workers import MatchCall
+
+log = logging.getLogger('rosout.' + __name__)
+
+ELSEWHERE = 'a search onto the final merge without it places it elsewhere, where it does not join'
+
+
+def search_placed_again(grower, group) -> List[int]:
+    """Search each member of `group` that a search placed (grower.searched) onto the union of the others; move or
+    take out those it places elsewhere (see the module). Returns the members moved or taken out."""
+    todo = sorted(k for k in group.members if k in grower.searched and k not in (group.seed, grower.reference))
+    changed = []
+    for start in range(0, len(todo), grower.s.threads):
+        chunk = todo[start:start + grower.s.threads]
+        calls = [MatchCall(k, group.seed, grower.prepared[k], _without(grower, group, k).prepared(),
+                           dict(onto_union=True, descriptors=False, distinct_places=True)) for k in chunk]
+        for k, m in zip(chunk, grower.matcher.match_all(calls)):
+            if not m.accepted or not _elsewhere(grower, group, k, m):
+                continue
+            if _joins_there(grower, group, k, m):
+                log.debug('grid %d moves: a search onto the final merge without it places it elsewhere', k)
+                group.leave(k)
+                group.join(k, grower.grids[k], grower.prepared[k], m)
+            else:
+                log.debug('grid %d leaves group %d: a search onto the final merge without it places it elsewhere',
+                          k, group.seed)
+                group.leave(k)
+                grower.refused[k] = dataclasses.replace(m, accepted=False, reason=ELSEWHERE)
+            changed.append(k)
+    return changed
+
+
+def _without(grower, group, k: int) -> UnionMap:
+    union = UnionMap(group.union.resolution, grower.keypoints_of)
+    for j, t in group.members.items():
+        if j != k:
+            union.add(j, grower.grids[j], grower.prepared[j], t)
+    return union
+
+
+def _elsewhere(grower, group, k: int, m) -> bool:
+    """Whether the match m of member k places it at another place than the group has it."""
+    part = grower.prepared[k]
+    to_px = tf.scaling(1.0 / part.resolution)   # distinct compares pixel transforms: pixels of k's size will do
+    return distinct(to_px @ m.transform_m @ part.px_to_map, to_px @ group.members[k] @ part.px_to_map, part,
+                    grower.s)
+
+
+def _joins_there(grower, group, k: int, m) -> bool:
+    """Whether member k, placed by m, passes search_left_out's rules there against the other members."""
+    if not grower._shares_enough(k, m.best.overlap_m2):
+        return False
+    others = {j: t for j, t in group.members.items() if j != k}
+    agreeing, contradicting = judge_members(k, m.transform_m, others, group.union.footprints,
+                                            footprint(grower.grids[k], m.transform_m), grower.prepared, grower.s,
+                                            strict=False, verified=grower.judged)
+    return len(agreeing) >= MIN_AGREEING and not contradicting

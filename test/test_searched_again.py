@@ -1,0 +1,50 @@
+"""searched_again.py: a member a search placed is searched again onto the final merge without it; placed elsewhere
+by the rules of the maps left out, it moves there, and a member placed right stays."""
+import numpy as np
+
+from multirobot_map_merge import transforms as tf
+from multirobot_map_merge.estimation.searched_again import search_placed_again
+from test_eviction import _merge_of, seen, stubbed_building
+
+CORNERS = np.array([[0.0, 0.0], [15.0, 10.0]])
+
+
+def _merge(placed_3: np.ndarray):
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 40, 160)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    group.union.add(3, grids[3], grower.prepared[3], placed_3)
+    grower.searched.add(3)
+    return grower, group
+
+
+def test_a_searched_member_placed_elsewhere_on_the_final_merge_moves_there():
+    grower, group = _merge(tf.rigid(1.5, 0.4, 0.03))
+    assert search_placed_again(grower, group) == [3]
+    rot, shift = tf.difference(group.members[3], np.eye(3), CORNERS)
+    assert rot < 0.01 and shift < 0.1
+    assert search_placed_again(grower, group) == []   # now where the search puts it
+
+
+def test_a_searched_member_placed_right_stays():
+    grower, group = _merge(np.eye(3))
+    before = group.members[3].copy()
+    assert search_placed_again(grower, group) == []
+    assert np.allclose(group.members[3], before)
+
+
+def test_a_member_placed_by_descriptors_is_not_searched_again():
+    grower, group = _merge(tf.rigid(1.5, 0.4, 0.03))
+    grower.searched.clear()
+    assert search_placed_again(grower, group) == []
+
+
+def test_a_searched_member_placed_elsewhere_that_shares_too_little_there_leaves():
+    """Map 3 saw the east of the hall too: at its true place it shares less than half its area with the others."""
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 100, 300)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    group.union.add(3, grids[3], grower.prepared[3], tf.rigid(1.5, 0.4, 0.03))
+    grower.searched.add(3)
+    assert search_placed_again(grower, group) == [3]
+    assert sorted(group.members) == [0, 1, 2] and not grower.refused[3].accepted
