@@ -321,10 +321,11 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
 
 
 def building_names(arg: str) -> List[str]:
-    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), or a list."""
+    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), 'unseen' (the
+    held-out building of every kind, <kind>36_u), or a list."""
     import make_sample_maps
-    if arg == 'buildings':
-        return [f'{kind}36' for kind in make_sample_maps.BUILDING_FLEETS]
+    if arg in ('buildings', 'unseen'):
+        return [f'{kind}36' + ('_u' if arg == 'unseen' else '') for kind in make_sample_maps.BUILDING_FLEETS]
     return arg.split(',')
 
 
@@ -476,7 +477,8 @@ def main() -> int:
                          'under a minute each), one merge_maps -v process each: a row per scenario (placed right, '
                          'false merges, estimation time), the median and worst, and why each mergeable map is left '
                          'out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
-                         'large36_b.._d, <kind>36 for every building kind), or none: every building kind')
+                         'large36_b.._d, <kind>36 for every building kind, <kind>36_u the held-out one), unseen: '
+                         'every <kind>36_u, or none: every <kind>36')
     ap.add_argument('--replay', action='store_true',
                     help='with --generated: match each mergeable map not placed right again, against the right-placed '
                          'maps it overlaps most and against the merged map, each verdict checked with the truth '

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from typing import List
 
 from .. import transforms as tf
 from .eviction import MIN_AGREEING, judge_members
-from .union import UnionMap, footprint
+from .union import footprint
 from .verify import distinct
 from .workers import MatchCall
 
@@ -34,9 +35,11 @@ def search_placed_again(grower, group) -> List[int]:
     take out those it places elsewhere (see the module). Returns the members moved or taken out."""
     todo = sorted(k for k in group.members if k in grower.searched and k not in (group.seed, grower.reference))
     changed = []
+    started = time.perf_counter()
     for start in range(0, len(todo), grower.s.threads):
         chunk = todo[start:start + grower.s.threads]
-        calls = [MatchCall(k, group.seed, grower.prepared[k], _without(grower, group, k).prepared(),
+        calls = [MatchCall(k, group.seed, grower.prepared[k],
+                           grower._union_of(group, {j: t for j, t in group.members.items() if j != k}),
                            dict(onto_union=True, descriptors=False, distinct_places=True)) for k in chunk]
         for k, m in zip(chunk, grower.matcher.match_all(calls)):
             if not m.accepted or not _elsewhere(grower, group, k, m):
@@ -51,15 +54,10 @@ def search_placed_again(grower, group) -> List[int]:
                 group.leave(k)
                 grower.refused[k] = dataclasses.replace(m, accepted=False, reason=ELSEWHERE)
             changed.append(k)
+    if todo:
+        log.debug('%d members a search placed searched again onto the final merge: %d moved or left, %.2f s',
+                  len(todo), len(changed), time.perf_counter() - started)
     return changed
-
-
-def _without(grower, group, k: int) -> UnionMap:
-    union = UnionMap(group.union.resolution, grower.keypoints_of)
-    for j, t in group.members.items():
-        if j != k:
-            union.add(j, grower.grids[j], grower.prepared[j], t)
-    return union
 
 
 def _elsewhere(grower, group, k: int, m) -> bool:
