@@ -29,6 +29,7 @@ from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
 from .pair import SEARCH_POSTPONED, PairMatch
 from .settings import EstimationSettings
+from .split import split
 from .eviction import MIN_AGREEING, contradicted_members, judge_members
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, least_agreeing, recheck
@@ -484,6 +485,8 @@ class Grower:
                 break
             self._evict(group, singled[0], 'maps the other members agree with contradict it')
             evicted = True
+            # the halves a broken seed placed by its two parts hold together no more (split.py)
+            groups.extend(split(self, group))
             # the maps outside matched again one by one (those of other groups too: the member taken out may have
             # been what their group contradicted), then what is left of the other groups as groups
             again = [k for k in outside if k not in self.evicted and k not in group.members]
