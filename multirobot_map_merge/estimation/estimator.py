@@ -428,8 +428,10 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 chosen = largest()
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
-            if search_side_groups(grower, chosen) | bool(search_placed_again(grower, chosen)):
-                grower.search_left_out(chosen)
+            joined = search_side_groups(grower, chosen)
+            moved = search_placed_again(grower, chosen)
+            if joined or moved:
+                grower.search_left_out(chosen)   # beside them the maps left out can share enough now
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)

@@ -16,9 +16,9 @@ So the members of such a group that are still left out at the end are placed tog
 the rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge and
 contradict none (eviction.judge_members), more than the members the merge contradicts, and a search of the union
 finds no place as good elsewhere (pair.find_rival, pair.as_good). A broken map placed by one fitting part meets the
-merge by that part alone; a group meets it by several maps that agree. In hospital36 six of the seven members of
-the chain meet the merge where the search of map_24 put them, the seventh (map_25) contradicts a merge member by
-its thin common walls (19 m2; the two maps agree at the truth).
+merge by that part alone; a group meets it by several maps that agree. In hospital36 the seven members of the
+chain meet the merge where the end's search put one of them (seeds 0-2 of the random sampling); without the ICP
+refinement of the union there, one of them (map_25) contradicted a member by their thin common walls (19 m2).
 """
 from __future__ import annotations
 
