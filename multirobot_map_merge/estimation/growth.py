@@ -513,7 +513,7 @@ class Grower:
             group = max(groups, key=lambda g: (len(g.members), self.reference in g.members))
         return evicted
 
-    def _restate_refused(self, old_seed: int, new_seed: int, old_to_new: np.ndarray) -> None:
+    def restate_refused(self, old_seed: int, new_seed: int, old_to_new: np.ndarray) -> None:
         """The matches refused onto a group whose frame becomes another's (the group is absorbed, or reseeded),
         restated in the new frame: where they placed a grid left out still says what its members think of it."""
         for (k, j), m in list(self.refused_onto.items()):
@@ -549,11 +549,11 @@ class Grower:
                     if m.accepted and not (len(small.members) == 1 and self._waits(m, set(big.members))):
                         # the merged frame stays that of the preferred reference's group
                         if self.reference in small.members:
-                            self._restate_refused(big.seed, small.seed, tf.inverse(m.transform_m))
+                            self.restate_refused(big.seed, small.seed, tf.inverse(m.transform_m))
                             small.absorb(big, tf.inverse(m.transform_m), m)
                             groups[a] = small
                         else:
-                            self._restate_refused(small.seed, big.seed, m.transform_m)
+                            self.restate_refused(small.seed, big.seed, m.transform_m)
                             big.absorb(small, m.transform_m, m)
                         for k in groups[a].members:
                             self._forget_search(k, groups[a])
@@ -614,12 +614,12 @@ class Grower:
         """Whether a map that singled out member j (voters: (grid, where it voted from, metric in the group's frame))
         would join the group's union without j there, by search_left_out's rules: the pair rules and LEFT_OUT_SHARE
         of its known area in common."""
-        union = self._union_of(group, {k: t for k, t in group.members.items() if k != j})
+        union = self.union_of(group, {k: t for k, t in group.members.items() if k != j})
         if union is None:
             return False
         for k, place in voters:
-            c = self._passes_onto(self.prepared[k], union, place)
-            if c is not None and self._shares_enough(k, c.overlap_m2):
+            c = self.passes_onto(self.prepared[k], union, place)
+            if c is not None and self.shares_enough(k, c.overlap_m2):
                 return True
         return False
 
@@ -627,25 +627,25 @@ class Grower:
                        small_to_big: np.ndarray) -> bool:
         """Whether the unions of the two groups' `members` (group id -> the members kept) pass the acceptance rules
         at the placement small_to_big (metric: the small group's frame -> the big one's)."""
-        unions = [self._union_of(g, members[id(g)]) for g in (small, big)]
+        unions = [self.union_of(g, members[id(g)]) for g in (small, big)]
         if unions[0] is None or unions[1] is None:
             return False
-        return self._passes_onto(unions[0], unions[1], small_to_big) is not None
+        return self.passes_onto(unions[0], unions[1], small_to_big) is not None
 
-    def _union_of(self, group: Group, placed: Dict[int, np.ndarray]) -> Optional[PreparedGrid]:
+    def union_of(self, group: Group, placed: Dict[int, np.ndarray]) -> Optional[PreparedGrid]:
         """The prepared union of some of the group's members (member -> metric transform into its frame)."""
         union = UnionMap(self.res, group.union.keypoints_of)
         for k, t in placed.items():
             union.add(k, group.union.grids[k], group.union.parts[k], t)
         return union.prepared()
 
-    def _passes_onto(self, part: PreparedGrid, union: PreparedGrid, to_union: np.ndarray) -> Optional[Placement]:
+    def passes_onto(self, part: PreparedGrid, union: PreparedGrid, to_union: np.ndarray) -> Optional[Placement]:
         """The verification of `part` placed onto `union` by `to_union` (metric: its frame -> the union's), if it
         passes the rules of a pair onto a union; else None."""
         c = verify(part, union, tf.inverse(union.px_to_map) @ to_union @ part.px_to_map, self.s)
         return c if plausible(c, self.s) and not refusal(c, part, union, self.s, onto_union=True) else None
 
-    def _shares_enough(self, k: int, overlap_m2: float) -> bool:
+    def shares_enough(self, k: int, overlap_m2: float) -> bool:
         """Whether a placement of grid k sharing `overlap_m2` with the merge shares LEFT_OUT_SHARE of its known area."""
         pk = self.prepared[k]
         return overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2
@@ -725,7 +725,7 @@ class Grower:
             self.search_seconds += time.perf_counter() - started
             joining = []
             for m in matches:
-                if not m.accepted or not self._shares_enough(m.i, m.best.overlap_m2):
+                if not m.accepted or not self.shares_enough(m.i, m.best.overlap_m2):
                     continue
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
@@ -771,7 +771,7 @@ class Grower:
     def _placed_again(self, m: PairMatch, union: PreparedGrid) -> Optional[PairMatch]:
         """The accepted match m of a grid onto a union, judged again at its place on a grown `union` (the same frame):
         the match with that verification if it still passes the rules of a pair, else None."""
-        c = self._passes_onto(self.prepared[m.i], union, m.transform_m)
+        c = self.passes_onto(self.prepared[m.i], union, m.transform_m)
         return None if c is None else dataclasses.replace(m, best=c)
 
     def _join(self, group: Group, m: PairMatch) -> None:
@@ -788,7 +788,7 @@ class Grower:
             # the largest maps seed groups, and a broken map is often the largest: the largest other member
             # becomes the seed, and the matches refused onto the group are restated in its frame
             new_seed = max((k for k in group.members if k != j), key=lambda k: self.prepared[k].known_pixels)
-            self._restate_refused(j, new_seed, group.reframe(new_seed))
+            self.restate_refused(j, new_seed, group.reframe(new_seed))
         group.leave(j)
         self.contradicting.add(j)
         self.refused[j] = PairMatch(j, group.seed, reason=why)

@@ -39,7 +39,7 @@ def search_placed_again(grower, group) -> List[int]:
     for start in range(0, len(todo), grower.s.threads):
         chunk = todo[start:start + grower.s.threads]
         calls = [MatchCall(k, group.seed, grower.prepared[k],
-                           grower._union_of(group, {j: t for j, t in group.members.items() if j != k}),
+                           grower.union_of(group, {j: t for j, t in group.members.items() if j != k}),
                            dict(onto_union=True, descriptors=False, distinct_places=True)) for k in chunk]
         for k, m in zip(chunk, grower.matcher.match_all(calls)):
             if not m.accepted or not _elsewhere(grower, group, k, m):
@@ -70,7 +70,7 @@ def _elsewhere(grower, group, k: int, m) -> bool:
 
 def _joins_there(grower, group, k: int, m) -> bool:
     """Whether member k, placed by m, passes search_left_out's rules there against the other members."""
-    if not grower._shares_enough(k, m.best.overlap_m2):
+    if not grower.shares_enough(k, m.best.overlap_m2):
         return False
     others = {j: t for j, t in group.members.items() if j != k}
     agreeing, contradicting = judge_members(k, m.transform_m, others, group.union.footprints,

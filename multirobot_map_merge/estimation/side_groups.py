@@ -56,7 +56,7 @@ def search_side_groups(grower, group) -> int:
         if len(left) < 2 or frozenset(left) in tried:
             continue
         tried.add(frozenset(left))
-        them = _union_of(grower, side, left)
+        them = _side_union(grower, side, left)
         m = _placed(grower, group, them)
         if m is None:
             continue
@@ -84,7 +84,7 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
             places.append(px)
     for px in places:
         place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
-        c = grower._passes_onto(part, union, place)
+        c = grower.passes_onto(part, union, place)
         if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
             continue
         meeting, contradicted = _meeting(grower, group, them, place)
@@ -105,7 +105,7 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
     return None
 
 
-def _union_of(grower, side: Dict[int, np.ndarray], left: Sequence[int]):
+def _side_union(grower, side: Dict[int, np.ndarray], left: Sequence[int]):
     """A group of the grids `left`, placed as in `side`, in the frame of the first."""
     them = grower.group(left[0], settle=False)
     to_first = tf.inverse(side[left[0]])

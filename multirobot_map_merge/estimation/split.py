@@ -65,7 +65,7 @@ def split(grower, group) -> list:
         # the kept part's largest member seeds the group, the matches refused onto it restated (as Grower._evict)
         new_seed = max(parts[0], key=lambda j: grower.prepared[j].known_pixels)
         old_seed = group.seed
-        grower._restate_refused(old_seed, new_seed, group.reframe(new_seed))
+        grower.restate_refused(old_seed, new_seed, group.reframe(new_seed))
     out = []
     for part in placed:
         for k in part:
