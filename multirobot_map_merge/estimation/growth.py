@@ -203,6 +203,16 @@ class Grower:
             self.settle(1)
         return Group(seed, self.grids[seed], self.prepared[seed], self.res, self.keypoints_of)
 
+    def group_of(self, seed: int, placed: Dict[int, np.ndarray]) -> Group:
+        """A new group of the grids `placed` (grid -> metric transform, one frame; the seed among them), placed
+        relative to each other as given, in the seed's frame (not counted as settled)."""
+        group = self.group(seed, settle=False)
+        to_seed = tf.inverse(placed[seed])
+        for k, t in placed.items():
+            if k != seed:
+                group.union.add(k, self.grids[k], self.prepared[k], to_seed @ t)
+        return group
+
     def tracked_group(self, reference: int, kept: Dict[int, np.ndarray], checks: Sequence) -> Group:
         """The group of the placements tracking kept (grid -> transform in the reference's frame), each linked by
         its check's match."""

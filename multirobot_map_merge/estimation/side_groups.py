@@ -23,7 +23,7 @@ refinement of the union there, one of them (map_25) contradicted a member by the
 from __future__ import annotations
 
 import logging
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -56,7 +56,7 @@ def search_side_groups(grower, group) -> int:
         if len(left) < 2 or frozenset(left) in tried:
             continue
         tried.add(frozenset(left))
-        them = _side_union(grower, side, left)
+        them = grower.group_of(left[0], {k: side[k] for k in left})
         m = _placed(grower, group, them)
         if m is None:
             continue
@@ -103,15 +103,6 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
         m.transform_m = place
         return m
     return None
-
-
-def _side_union(grower, side: Dict[int, np.ndarray], left: Sequence[int]):
-    """A group of the grids `left`, placed as in `side`, in the frame of the first."""
-    them = grower.group(left[0], settle=False)
-    to_first = tf.inverse(side[left[0]])
-    for k in left[1:]:
-        them.union.add(k, grower.grids[k], grower.prepared[k], to_first @ side[k])
-    return them
 
 
 def _meeting(grower, group, them, to_merge: np.ndarray) -> Tuple[List[int], List[int]]:

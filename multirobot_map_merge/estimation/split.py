@@ -15,8 +15,6 @@ from __future__ import annotations
 import logging
 from typing import Dict, List, Set
 
-import numpy as np
-
 from .eviction import judge_members
 from .union import footprint
 
@@ -70,12 +68,7 @@ def split(grower, group) -> list:
     for part in placed:
         for k in part:
             group.leave(k)
-        seed = max(part, key=lambda j: grower.prepared[j].known_pixels)
-        new = grower.group(seed, settle=False)
-        to_seed = np.linalg.inv(part[seed])
-        for k, t in part.items():
-            if k != seed:
-                new.union.add(k, grower.grids[k], grower.prepared[k], to_seed @ t)
+        new = grower.group_of(max(part, key=lambda j: grower.prepared[j].known_pixels), part)
         for k in part:
             if k in links and links[k].j in part:
                 new.links[k] = new.paired(links[k], k)
