@@ -85,6 +85,35 @@ def _sample(p: PreparedGrid, rng: np.random.Generator) -> Tuple[np.ndarray, np.n
     return walls, normals
 
 
+PairSamples = Dict[Tuple[int, int], Tuple[np.ndarray, np.ndarray]]   # each pair (i, j): walls of i and their normals
+
+
+def _reaching(pairs: Sequence[Tuple[int, int]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]],
+              prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray], reach_px: float,
+              pool: Optional[Executor] = None) -> PairSamples:
+    """Each pair's sampled walls of grid i that land, as `placed` puts them, within reach_px of a wall of grid j.
+
+    The others can pair with no wall of j while the two grids move less than reach_px (less the correspondence
+    radius) relative to each other, and a grid moved further than its limit at its corners is not kept (a rigid
+    move is largest at the corners of the known part): most of a grid's walls lie outside the common area of most of
+    its pairs (the generated 36-map buildings: 20-25 % of the walls within reach; the dev set's 30 maps, 55 %)."""
+    def near(ij: Tuple[int, int]) -> Tuple[np.ndarray, np.ndarray]:
+        i, j = ij
+        walls, normals = samples[i]
+        dst = prepared[j]
+        h, w = dst.work.shape
+        xy = tf.apply(tf.inverse(placed[j] @ dst.px_to_map) @ placed[i] @ prepared[i].px_to_map, walls)
+        inside = np.column_stack([np.clip(xy[:, 0], 0, w - 1), np.clip(xy[:, 1], 0, h - 1)])
+        outside = np.hypot(*(xy - inside).T)
+        at = np.rint(inside).astype(np.int64)
+        # the nearest wall is at least as far as j's known box, and as its nearest wall from the box's edge less the
+        # way there; a pixel's distance stands for points within half a pixel's diagonal of it
+        bound = np.maximum(outside, dst.wall_distance[at[:, 1], at[:, 0]] - outside - 0.75)
+        keep = np.flatnonzero(bound <= reach_px)
+        return walls.take(keep, axis=0), normals.take(keep, axis=0)
+    return dict(zip(pairs, _each(pool, near, pairs)))
+
+
 class _PairWalls:
     """The sampled walls of grid i of some pairs (i, j), end to end, the pairs onto one grid j together: their
     correspondences in one pass of numpy operations, not a few dozen calls per pair (the final relaxation of the
@@ -92,12 +121,12 @@ class _PairWalls:
     so; mall36 0.6-1.0 s, 0.5 s). A relaxation takes its pairs in chunks of CHUNK_POINTS walls (_chunks), one at a
     time: all at once, their walls and temporaries took 200 MB at the peak (pair by pair 2 MB, in chunks 18 MB)."""
 
-    def __init__(self, pairs: Sequence[Tuple[int, int]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]]):
+    def __init__(self, pairs: Sequence[Tuple[int, int]], samples: PairSamples):
         self.pairs = list(pairs)
         order = sorted(range(len(self.pairs)), key=lambda n: self.pairs[n][1])
-        sizes = np.array([len(samples[self.pairs[n][0]][0]) for n in order], np.int64)
+        sizes = np.array([len(samples[self.pairs[n]][0]) for n in order], np.int64)
         self.pair_of = np.repeat(np.asarray(order, np.int64), sizes)
-        parts = [samples[self.pairs[n][0]] for n in order]
+        parts = [samples[self.pairs[n]] for n in order]
         self.points = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 2))
         self.sides = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 2))
         self.onto: List[Tuple[int, int, int]] = []   # (grid j, start, stop): the points placed onto grid j
@@ -158,17 +187,16 @@ def _coefficients(models: np.ndarray, of: np.ndarray) -> Tuple[np.ndarray, ...]:
     return tuple(models[:, row, col].take(of) for row in (0, 1) for col in (0, 1, 2))
 
 
-def _chunks(pairs: Sequence[Tuple[int, int]],
-            samples: Dict[int, Tuple[np.ndarray, np.ndarray]]) -> List[List[Tuple[int, int]]]:
+def _chunks(pairs: Sequence[Tuple[int, int]], samples: PairSamples) -> List[List[Tuple[int, int]]]:
     """The pairs in chunks of about CHUNK_POINTS walls (a pair is never split), the pairs onto one grid together."""
     out: List[List[Tuple[int, int]]] = []
     size = 0
     for ij in sorted(pairs, key=lambda ij: ij[1]):
-        if not out or size + len(samples[ij[0]][0]) > CHUNK_POINTS:
+        if not out or size + len(samples[ij][0]) > CHUNK_POINTS:
             out.append([])
             size = 0
         out[-1].append(ij)
-        size += len(samples[ij[0]][0])
+        size += len(samples[ij][0])
     return out
 
 
@@ -177,7 +205,7 @@ def _each(pool: Optional[Executor], f: Callable, items: Sequence) -> Iterable:
     return pool.map(f, items) if pool is not None else map(f, items)
 
 
-def _fits(chunks: List[List[Tuple[int, int]]], samples: Dict[int, Tuple[np.ndarray, np.ndarray]],
+def _fits(chunks: List[List[Tuple[int, int]]], samples: PairSamples,
           prepared: Sequence[Optional[PreparedGrid]], placed: Dict[int, np.ndarray],
           pool: Optional[Executor] = None) -> int:
     """Walls, over every pair, within FIT_PX of a wall of the other grid seen from the same side."""
@@ -194,8 +222,9 @@ def walls_fitting(placements: Sequence[Dict[int, np.ndarray]], prepared: Sequenc
     rng = np.random.default_rng(seed)
     grids = sorted({k for ij in pairs for k in ij})
     samples = {k: _sample(prepared[k], rng) for k in grids}
-    chunks = _chunks(pairs, samples)
-    return [_fits(chunks, samples, prepared, placed) for placed in placements]
+    of_pairs = {ij: samples[ij[0]] for ij in pairs}
+    chunks = _chunks(pairs, of_pairs)
+    return [_fits(chunks, of_pairs, prepared, placed) for placed in placements]
 
 
 def _normal_equations(pair: np.ndarray, p: np.ndarray, q: np.ndarray, n: np.ndarray, walls: _PairWalls,
@@ -306,7 +335,10 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     directions = _Directions(placed, reference, prepared, len(column) * 3, pool)
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first = True              # the first iteration: every pair, and the correspondences of each counted
-    fitted = _chunks(pairs, samples)   # every pair judges the result
+    res = abs(np.linalg.det(prepared[moving[0]].px_to_map[:2, :2])) ** 0.5   # metres per pixel, every grid's
+    # each of a pair may move limits.max_move_m at most
+    reaching = _reaching(pairs, samples, prepared, placed, RADII[0] + 2 * limits.max_move_m / res, pool)
+    fitted = _chunks(pairs, reaching)   # every pair judges the result
     chunks = fitted           # the pairs refined on, as long as no more go idle
     before = 0                # walls fitting at the placements given, over the pairs fitted
     held = threading.local()  # each thread's last chunk's arrays (see terms)
@@ -321,7 +353,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
 
             def terms(chunk: List[Tuple[int, int]]) -> Tuple[list, int, np.ndarray, np.ndarray]:
                 # one chunk's pairs: their counts, the walls fitting before, their normal equations
-                walls = _PairWalls(chunk, samples)
+                walls = _PairWalls(chunk, reaching)
                 # one way per pair (i's walls onto j's, j's normals): the pair's other way adds little but the time
                 pair, p, q, n = walls.correspondences(walls.models(prepared, out), prepared, radius)
                 count = np.bincount(pair, minlength=len(walls.pairs))
@@ -364,7 +396,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                         kept[i], kept[j] = kept.get(i, 0) + 1, kept.get(j, 0) + 1
                 active = [ij for ij in active if ij in strong]
             if len(active) < len(refined):
-                chunks = _chunks(active, samples)
+                chunks = _chunks(active, reaching)
             step = -np.linalg.solve(h, g)
             for k, c in column.items():
                 dx, dy, dt = step[c:c + 3]
@@ -375,7 +407,7 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
                     and np.abs(step[2::3]).max(initial=0) < STILL_RAD:
                 break
     moved = max(tf.difference(out[k], placed[k], known_corners(grids[k]))[1] for k in moving)
-    after = _fits(fitted, samples, prepared, out, pool)
+    after = _fits(fitted, reaching, prepared, out, pool)
     if moved > limits.max_move_m or after <= before:
         log.debug('relaxation not kept: walls fitting %d -> %d, moved up to %.2f m', before, after, moved)
         return None
