@@ -744,3 +744,32 @@ def test_tracking_checks_again_only_the_placements_that_saw_the_map_it_dropped(m
                                         EstimationMemory(), list('abcde'), ['same'] * 5)
     assert sorted(placed) == [0, 2, 3, 4]   # 1 dropped, 2 holds without it
     assert sorted(made) == [0, 1, 2, 2, 3, 4]   # 3 and 4 once (before: twice), the reference at the end
+
+
+def test_a_group_that_was_the_largest_once_is_tried_member_by_member_when_another_outgrows_it(repo_root,
+                                                                                              monkeypatch):
+    """search_grow: the first largest group (4, 5) joins nothing; the grids it left grow a larger group (0-3) that
+    refuses it as a whole (a group grown by a broken seed's two parts). Its members are then matched onto the merge
+    one by one, and those that fit join; before, they stayed out as a group."""
+    from multirobot_map_merge.estimation.estimator import search_grow
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grower, _ = _three_placed_and_three_more(repo_root, 'three_robots', 'chain3')
+    first = grower.group(4)
+    first.union.add(5, grower.grids[5], grower.prepared[5], np.eye(3))
+    onto = []
+
+    def match(k, group):
+        onto.append((k, frozenset(group.members)))
+        m = PairMatch(k, group.seed, accepted=0 in group.members and k != 5, reason='' if 0 in group.members else 'no')
+        m.transform_m = np.eye(3)
+        return m
+
+    monkeypatch.setattr(Grower, 'match', lambda self, group, grids, search: [match(k, group) for k in grids])
+    monkeypatch.setattr(Grower, '_match_groups', lambda self, small, big: PairMatch(small.seed, big.seed, reason='no'))
+    monkeypatch.setattr(Grower, '_match_ahead', lambda self, big, smalls: None)
+    groups = [first] + [grower.group(k) for k in (0, 1, 2, 3)]
+    groups = search_grow(grower, groups, None)
+    assert set(groups[0].members) == {0, 1, 2, 3, 4}
+    assert (4, frozenset({0, 1, 2, 3})) in onto and (5, frozenset({0, 1, 2, 3, 4})) in onto
+    assert not any(len(g.members) > 1 for g in groups[1:])

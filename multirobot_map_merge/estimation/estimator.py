@@ -37,6 +37,7 @@ from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitt
 from .settings import EstimationSettings
 from .searched_again import search_placed_again
 from .side_groups import remember, search_side_groups
+from .stronger import WEAK_AGREEMENT
 from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
 from .uniqueness import StandingCheck
@@ -83,7 +84,8 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
     the members of the groups that did not merge without their seeds and tries those groups, and last searches
     again the grids whose search failed, against the group grown as far as it could otherwise
     (Grower.search_again); while the grids outside it could still form a larger group, the largest of those does
-    the same with the rest."""
+    the same with the rest. Last, the regrouped groups and the earlier largest ones that did not join the merge are
+    tried member by member (not a group that holds the reference)."""
     done: List[Group] = []
     carried: List[Group] = []   # groups regrouped from failed ones, not yet tried member by member
     while groups:
@@ -130,10 +132,13 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
         done.sort(key=lambda g: -len(g.members))
         carried += regrouped
         groups = regrouped + [grower.group(k, settle=False) for k in alone]
-    # a regrouped group that did not join the merge is tried member by member after all
-    for group in carried:
+    # a regrouped group that did not join the merge is tried member by member after all, and so is a group that was
+    # the largest once: the regrouping takes apart the groups that do not join the largest, which may be the one
+    # that holds a broken map (held-out warehouse36_u: a broken seed grew a group of 14 by its two parts, the
+    # regrouped rest outgrew it to 15, and the 12 healthy maps of the 14 stayed out; one by one they join: 26 of 27)
+    for group in carried + done[1:]:
         merge = done[0]
-        if group is merge or not merge.members.keys().isdisjoint(group.members):
+        if group is merge or not merge.members.keys().isdisjoint(group.members) or reference in group.members:
             continue
         for holder in (done, groups):
             if group in holder:
@@ -429,7 +434,12 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
             joined = search_side_groups(grower, chosen)
-            moved = search_placed_again(grower, chosen)
+            # every member judged on the final merge as it stands (the check of the members a search placed); those
+            # that fit it weakly are searched again with them (not taken out for it: real maps' right placements can
+            # fail the check without the refinement, while their search places them where they are)
+            weak = [c.k for c in grower.checks(chosen, [k for k in chosen.members if k != chosen.seed])
+                    if c.match.best is None or c.match.best.agreement < WEAK_AGREEMENT]
+            moved = search_placed_again(grower, chosen, weak)
             if joined or moved:
                 grower.search_left_out(chosen)   # beside them the maps left out can share enough now
         if settings.relax_final and not tracked:

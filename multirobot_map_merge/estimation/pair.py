@@ -46,6 +46,7 @@ SEARCH_POSTPONED = 'search postponed: the search budget of this estimation is sp
 # of 9 seeds, 8-10 maps each, half a turn or 28-53 m off), and in one seed a maze's groups joined a quarter turn off;
 # refused, no group joins wrong there, and 12-17 of hospital36's 27 maps are placed
 ELSEWHERE_SUPPORT = 4.0
+AMBIGUOUS = 'ambiguous'   # the start of the reason of a match refused beside another place as good
 NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
 
@@ -318,7 +319,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
                   and as_good(c, best, s)), None)
     result.reason = reason
     if not result.reason and rival is not None:
-        result.reason = (f'ambiguous: another placement agrees {rival.agreement:.2f} with support '
+        result.reason = (f'{AMBIGUOUS}: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
     if not result.reason and between_groups:
         # two unions that overlap far more elsewhere, where they contradict: a small join beside it is a guess
