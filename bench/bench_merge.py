@@ -321,11 +321,12 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
 
 
 def building_names(arg: str) -> List[str]:
-    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), 'unseen' (the
-    held-out building of every kind, <kind>36_u), or a list."""
+    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), 'unseen' and
+    'unseen2' (the held-out buildings of every kind, <kind>36_u and <kind>36_v), or a list."""
     import make_sample_maps
-    if arg in ('buildings', 'unseen'):
-        return [f'{kind}36' + ('_u' if arg == 'unseen' else '') for kind in make_sample_maps.BUILDING_FLEETS]
+    suffix = {'buildings': '', 'unseen': '_u', 'unseen2': '_v'}.get(arg)
+    if suffix is not None:
+        return [f'{kind}36{suffix}' for kind in make_sample_maps.BUILDING_FLEETS]
     return arg.split(',')
 
 
@@ -477,8 +478,8 @@ def main() -> int:
                          'under a minute each), one merge_maps -v process each: a row per scenario (placed right, '
                          'false merges, estimation time), the median and worst, and why each mergeable map is left '
                          'out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
-                         'large36_b.._d, <kind>36 for every building kind, <kind>36_u the held-out one), unseen: '
-                         'every <kind>36_u, or none: every <kind>36')
+                         'large36_b.._d, <kind>36 for every building kind, <kind>36_u and <kind>36_v the held-out '
+                         'ones), unseen: every <kind>36_u, unseen2: every <kind>36_v, or none: every <kind>36')
     ap.add_argument('--replay', action='store_true',
                     help='with --generated: match each mergeable map not placed right again, against the right-placed '
                          'maps it overlaps most and against the merged map, each verdict checked with the truth '
