@@ -50,14 +50,6 @@ def test_a_searched_member_placed_elsewhere_that_shares_too_little_there_leaves(
     assert sorted(group.members) == [0, 1, 2] and not grower.refused[3].accepted
 
 
-def test_a_member_placed_by_descriptors_that_fits_the_final_merge_weakly_is_searched_again():
-    grower, group = _merge(tf.rigid(1.5, 0.4, 0.03))
-    grower.searched.clear()
-    assert search_placed_again(grower, group, weak=[3]) == [3]
-    rot, shift = tf.difference(group.members[3], np.eye(3), CORNERS)
-    assert rot < 0.01 and shift < 0.1
-
-
 def test_a_member_the_search_onto_the_final_merge_finds_two_places_as_good_for_leaves(monkeypatch):
     """Where the search onto the others finds another place as good as the member's (pair.AMBIGUOUS), the merge
     cannot tell where it is: it leaves, with the reason; one whose search is refused for another reason stays."""

@@ -37,7 +37,6 @@ from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitt
 from .settings import EstimationSettings
 from .searched_again import search_placed_again
 from .side_groups import remember, search_side_groups
-from .stronger import WEAK_AGREEMENT
 from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
 from .uniqueness import StandingCheck
@@ -434,12 +433,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
             joined = search_side_groups(grower, chosen)
-            # every member judged on the final merge as it stands (the check of the members a search placed); those
-            # that fit it weakly are searched again with them (not taken out for it: real maps' right placements can
-            # fail the check without the refinement, while their search places them where they are)
-            weak = [c.k for c in grower.checks(chosen, [k for k in chosen.members if k != chosen.seed])
-                    if c.match.best is None or c.match.best.agreement < WEAK_AGREEMENT]
-            moved = search_placed_again(grower, chosen, weak)
+            moved = search_placed_again(grower, chosen)
             if joined or moved:
                 grower.search_left_out(chosen)   # beside them the maps left out can share enough now
         if settings.relax_final and not tracked:

@@ -32,7 +32,7 @@ from .settings import EstimationSettings
 from .split import split
 from .eviction import MIN_AGREEING, contradicted_members, judge_members
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
-from .tracking import MAX_PASSES, Check, least_agreeing, recheck
+from .tracking import MAX_PASSES, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .verify import Placement, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
@@ -448,17 +448,15 @@ class Grower:
         a union of 16, which the final union of 25 contradicts, agreement 0.89). One that fails, for a reason other
         than precision alone, leaves the group: the one that agrees least first, then those that failed are judged
         again without it, as tracking does."""
-        self.confirm(group, [k for k in group.members if k in self.searched],
-                     'the merge contradicts the placement a search found')
-
-    def confirm(self, group: Group, members: List[int], failing: str) -> None:
-        """confirm_searches' check of the given members (not the seed nor the reference; a refusal's reason starts
-        with `failing`)."""
-        todo = [k for k in members if k not in (group.seed, self.reference)]
+        todo = [k for k in group.members if k in self.searched and k not in (group.seed, self.reference)]
         for _ in range(MAX_PASSES):
             if not todo:
                 return
-            checks = self.checks(group, todo, failing)
+            placed, footprints = dict(group.members), dict(group.union.footprints)
+            checks = list(self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res,
+                                                          self.s, refine=False,
+                                                          failing='the merge contradicts the placement a search '
+                                                                  'found'), todo))
             # not for precision alone: the members near it can be too few to show the wall direction that made the
             # search's placement precise on the whole union (orientation.angle_bound; demo_late_group's robot_5:
             # 0.11 m there, 0.28-0.30 m here, left out for good on static maps); a slide shows as walls that disagree
@@ -473,13 +471,6 @@ class Grower:
                                      (self.grids[worst.k], group.union.known_pixels,
                                       frozenset(self.names[m] for m in group.members)))
             todo = [c.k for c in failed if c is not worst]
-
-    def checks(self, group: Group, members: List[int], failing: str = '') -> List[Check]:
-        """Tracking's check of the given members (recheck, without its refinement), each judged as it is against the
-        other members near it, in parallel; a refusal's reason starts with `failing`."""
-        placed, footprints = dict(group.members), dict(group.union.footprints)
-        return list(self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res, self.s,
-                                                    refine=False, failing=failing), members))
 
     def evict_contradicted(self, group: Group, groups: List[Group], unplaced: List[int],
                            make_room: bool = False) -> bool:

@@ -1,4 +1,4 @@
-"""The members a correlation search placed, and those that fit the final merge weakly, searched again onto it.
+"""The members a correlation search placed, searched again onto the final merge without them.
 
 A search takes the best place on the union as it was then. A small map of a building of alike shops can fit a
 place half a turn away over its whole area (a generated mall not among the benchmarks: map_00, 69 m2, agreement
@@ -6,25 +6,20 @@ place half a turn away over its whole area (a generated mall not among the bench
 (7): the search places it at the alias, by the rules of a pair. The maps that join later see the truth: on the
 final merge the same search places it right (agreement 1.00, 790 walls) and the alias ranks below. Tracking's check
 of the searched placements (Grower.confirm_searches) does not see it: the members near the alias agree with it.
-Descriptors place such maps too: in another generated mall (world seed 508), map_08 joined onto one map at agreement
-0.995 over 65 m2, 6.4 m off, and on the final merge it agreed 0.96 with five members; the other 25 members fit it
-0.998-1.000 (stronger.WEAK_AGREEMENT).
 
-So at the end of an estimation afresh every member is judged on the final merge as it stands (the check of the
-members a search placed), and each member a search placed or that fits below WEAK_AGREEMENT there is searched again,
-by the search of the maps left out (growth.search_left_out: distinct places), onto the union of the other members.
-Where that search accepts a place distinct from the member's, the member moves there when that place passes
-search_left_out's rules (the share of its area, members agreeing, none contradicting), and leaves the merge
-otherwise. Where it finds two places as good (pair.AMBIGUOUS), the merge cannot tell where the member is, and it
-leaves: map_01 of the same mall, placed by a search 12.9 m off at agreement 1.00 with 1068 walls, has the truth as
-good (992 walls); map_08 there, its alias and the truth agree 1.00 with 1173 and 1178 walls.
+So at the end of an estimation afresh each member a search placed is searched again, by the search of the maps
+left out (growth.search_left_out: distinct places), onto the union of the other members. Where that search accepts
+a place distinct from the member's, the member moves there when that place passes search_left_out's rules (the
+share of its area, members agreeing, none contradicting), and leaves the merge otherwise. Where it finds two places
+as good (pair.AMBIGUOUS), the merge cannot tell where the member is, and it leaves: in the held-out mall36_v,
+map_01, placed by a search 12.9 m off at agreement 1.00 with 1068 walls, has the truth as good there (992 walls).
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 import time
-from typing import List, Sequence
+from typing import List
 
 from .. import transforms as tf
 from .eviction import MIN_AGREEING, judge_members
@@ -39,12 +34,11 @@ ELSEWHERE = 'a search onto the final merge without it places it elsewhere, where
 AS_GOOD = 'a search onto the final merge without it finds another place as good'
 
 
-def search_placed_again(grower, group, weak: Sequence[int] = ()) -> List[int]:
-    """Search each member of `group` that a search placed (grower.searched), and the members `weak`, onto the union
-    of the others; move or take out those it places elsewhere (see the module). Returns the members moved or taken
-    out."""
-    todo = sorted(k for k in group.members if (k in grower.searched or k in weak)
-                  and k not in (group.seed, grower.reference))
+def search_placed_again(grower, group) -> List[int]:
+    """Search each member of `group` that a search placed (grower.searched) onto the union of the others; move or
+    take out those it places elsewhere or finds as good elsewhere (see the module). Returns the members moved or
+    taken out."""
+    todo = sorted(k for k in group.members if k in grower.searched and k not in (group.seed, grower.reference))
     changed = []
     started = time.perf_counter()
     for start in range(0, len(todo), grower.s.threads):
@@ -72,8 +66,8 @@ def search_placed_again(grower, group, weak: Sequence[int] = ()) -> List[int]:
                 grower.refused[k] = dataclasses.replace(m, accepted=False, reason=ELSEWHERE)
             changed.append(k)
     if todo:
-        log.debug('%d members (placed by a search or fitting the merge weakly) searched again onto the final merge: '
-                  '%d moved or left, %.2f s', len(todo), len(changed), time.perf_counter() - started)
+        log.debug('%d members a search placed searched again onto the final merge: %d moved or left, %.2f s',
+                  len(todo), len(changed), time.perf_counter() - started)
     return changed
 
 
