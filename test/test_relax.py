@@ -183,3 +183,34 @@ def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_esti
     for k in range(len(names)):
         rot, disp = _error(grids[k], out[k], true[k])
         assert abs(rot) < 0.1 and disp < 0.1, (names[k], rot, disp)
+
+
+def test_each_pair_is_refined_on_the_walls_within_reach_of_the_other_map_and_the_result_is_the_same(repo_root):
+    """relax._reaching: some of map a's walls are left out of the pair (a, b), and none placed within the reach of
+    a wall of map b (a lower bound of the distance decides: a wall beyond b's known box may stay); refined on those
+    walls alone, the turned group relaxes to the same placements as on all of them."""
+    from multirobot_map_merge.estimation import relax as relax_module
+    grids, true = _chain(repo_root)
+    prepared = [prepare(g, 0.05, None) for g in grids]
+    placed = dict(enumerate(_turned_together(grids, true, 0.6)))
+    rng = np.random.default_rng(0)
+    samples = {k: relax_module._sample(prepared[k], rng) for k in placed}
+    reach = 12.0
+    kept = relax_module._reaching([(0, 1)], samples, prepared, placed, reach)[(0, 1)][0]
+    walls = samples[0][0]
+    px = tf.apply(tf.inverse(placed[1] @ prepared[1].px_to_map) @ placed[0] @ prepared[0].px_to_map, walls)
+    others = prepared[1].walls.astype(float)
+    nearest = np.array([np.hypot(*(others - p).T).min() for p in px])
+    assert 0 < len(kept) < len(walls)
+    kept_set = {tuple(w) for w in kept}
+    assert all(tuple(w) in kept_set for w, d in zip(walls, nearest) if d <= reach)   # none within reach left out
+    footprints = {k: footprint(grids[k], t) for k, t in placed.items()}
+    within = relax(placed, 0, grids, prepared, footprints)
+    everything = relax_module._reaching
+    try:
+        relax_module._reaching = lambda pairs, samples, *args: {ij: samples[ij[0]] for ij in pairs}
+        unfiltered = relax(placed, 0, grids, prepared, footprints)
+    finally:
+        relax_module._reaching = everything
+    for k in (1, 2):
+        assert np.allclose(within[k], unfiltered[k], atol=1e-6)
