@@ -335,9 +335,9 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     directions = _Directions(placed, reference, prepared, len(column) * 3, pool)
     out = {k: np.asarray(t, float).copy() for k, t in placed.items()}
     first = True              # the first iteration: every pair, and the correspondences of each counted
-    res = abs(np.linalg.det(prepared[moving[0]].px_to_map[:2, :2])) ** 0.5   # metres per pixel, every grid's
-    # each of a pair may move limits.max_move_m at most
-    reaching = _reaching(pairs, samples, prepared, placed, RADII[0] + 2 * limits.max_move_m / res, pool)
+    # each of a pair may move limits.max_move_m at most; every grid is at the working resolution
+    reaching = _reaching(pairs, samples, prepared, placed,
+                         RADII[0] + 2 * limits.max_move_m / prepared[moving[0]].resolution, pool)
     fitted = _chunks(pairs, reaching)   # every pair judges the result
     chunks = fitted           # the pairs refined on, as long as no more go idle
     before = 0                # walls fitting at the placements given, over the pairs fitted

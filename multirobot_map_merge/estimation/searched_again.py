@@ -48,27 +48,27 @@ def search_placed_again(grower, group) -> List[int]:
                            dict(onto_union=True, descriptors=False, distinct_places=True)) for k in chunk]
         for k, m in zip(chunk, grower.matcher.match_all(calls)):
             if not m.accepted and m.reason.startswith(AMBIGUOUS):
-                log.debug('grid %d leaves group %d: %s (%s)', k, group.seed, AS_GOOD, m.reason)
-                group.leave(k)
-                grower.refused[k] = dataclasses.replace(m, reason=f'{AS_GOOD} ({m.reason})')
-                changed.append(k)
+                _leave(grower, group, k, m, f'{AS_GOOD} ({m.reason})')
+            elif not m.accepted or not _elsewhere(grower, group, k, m):
                 continue
-            if not m.accepted or not _elsewhere(grower, group, k, m):
-                continue
-            if _joins_there(grower, group, k, m):
+            elif _joins_there(grower, group, k, m):
                 log.debug('grid %d moves: a search onto the final merge without it places it elsewhere', k)
                 group.leave(k)
                 group.join(k, grower.grids[k], grower.prepared[k], m)
             else:
-                log.debug('grid %d leaves group %d: a search onto the final merge without it places it elsewhere',
-                          k, group.seed)
-                group.leave(k)
-                grower.refused[k] = dataclasses.replace(m, accepted=False, reason=ELSEWHERE)
+                _leave(grower, group, k, m, ELSEWHERE)
             changed.append(k)
     if todo:
         log.debug('%d members a search placed searched again onto the final merge: %d moved or left, %.2f s',
                   len(todo), len(changed), time.perf_counter() - started)
     return changed
+
+
+def _leave(grower, group, k: int, m, why: str) -> None:
+    """Member k leaves the merge `group`, refused by its search m onto the others for `why`."""
+    log.debug('grid %d leaves group %d: %s', k, group.seed, why)
+    group.leave(k)
+    grower.refused[k] = dataclasses.replace(m, accepted=False, reason=why)
 
 
 def _elsewhere(grower, group, k: int, m) -> bool:
