@@ -22,7 +22,7 @@ from .. import transforms as tf
 from .features import PreparedGrid
 from .pair import PairMatch
 from .union import overlap_area
-from .verify import Placement, plausible, too_contradicted, verify
+from .verify import Placement, plausible, structural_conflicts, too_contradicted, verify
 
 
 if TYPE_CHECKING:
@@ -35,14 +35,21 @@ MIN_AGREEING = 2   # members that must agree with a map left out for its contrad
 
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
                   box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings, strict: bool = True,
-                  verified: Optional[Dict[tuple, Placement]] = None):
+                  verified: Optional[Dict[tuple, Placement]] = None, union_support: Optional[int] = None):
     """(agreeing, contradicting): the members that grid k, placed by `placed_k` (metric: its map -> the group's
     frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it
     (judged until two contradict it). Not `strict`: only a pair that agrees too little or contradicts inside both
     maps' views contradicts (not one whose common walls are too few to accept it as a pair). `verified` keeps the
     verifications of one estimation by grids and placement: the maps left out are judged again after each
     eviction, mostly at the same places against the same members (generated hospital36: 2,230 verifications, 1,734
-    of them different)."""
+    of them different).
+
+    With `union_support` (the walls of k that agreed with the union of the members at this place, where the union
+    refused k for its deep contradictions), a member whose common walls with k are too few to judge it as a pair
+    still contradicts when its deep contradictions alone are more than the union tolerates (max_deep_conflicts of
+    that support): a broken member's turned part over a corner of k's view (the held-out courtyard36_v: broken
+    map_13 over 2.6 m2 of map_02, 46 deep contradictions and 4 agreeing walls, refused map_02 on a union where six
+    members agreed with it over 31-125 m2 each)."""
     agreeing, contradicting = [], []
     pk = prepared[k]
     for j, t in members.items():
@@ -57,6 +64,11 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
             if verified is not None:
                 verified[key] = c
         if c.overlap_m2 < s.min_overlap_m2 or c.support + c.conflicts < s.min_support:
+            if union_support is not None and c.agreement < s.min_agreement \
+                    and structural_conflicts(c) > s.max_deep_conflicts * union_support:
+                contradicting.append(j)
+                if len(contradicting) > 1:
+                    break
             continue
         if plausible(c, s):
             agreeing.append(j)
@@ -67,12 +79,19 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
     return agreeing, contradicting
 
 
+def places(m: Optional[PairMatch], s: 'EstimationSettings') -> bool:
+    """Whether the refused match m found a place that can vote (contradicted_members): support and a common area
+    that a match needs."""
+    return m is not None and m.best is not None and m.transform_m is not None \
+        and m.best.support >= s.min_support and m.best.overlap_m2 >= s.min_overlap_m2
+
+
 def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatch],
                          members: Mapping[int, np.ndarray], footprints: Mapping, footprint_of,
                          prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
                          s: EstimationSettings, seen: Optional[Mapping[int, frozenset]] = None,
                          voters: Optional[Dict[int, list]] = None,
-                         verified: Optional[Dict[tuple, Placement]] = None) -> List[int]:
+                         verified: Optional[Dict[tuple, Placement]] = None, own: bool = False) -> List[int]:
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
     that match's other places (PairMatch.other_places_m) where it does, agrees with at least MIN_AGREEING members
@@ -81,20 +100,23 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
     and joins again where it is accepted (Grower.search_left_out(readmit=True)); with two maps needed, the broken
     map_00 of generated hospital36, singled out by one, kept right maps out. With `seen` (grid -> the members its
     refused match was made against), a map votes only against a member its match saw; `voters`, if given, is filled
-    with member -> [(grid, the place it voted from)]; `verified`: see judge_members."""
+    with member -> [(grid, the place it voted from)]; `verified`: see judge_members. With `own`, each refused match
+    is the map's own onto the union of `members`: where the union refused it for deep contradictions, a member too
+    small to judge as a pair can hold them (judge_members' union_support)."""
     votes: Counter = Counter()
     if len(members) <= MIN_AGREEING:
         return []
     for k in left_out:
         m = refused.get(k)
-        if m is None or m.best is None or m.transform_m is None or prepared[k] is None \
-                or m.best.support < s.min_support or m.best.overlap_m2 < s.min_overlap_m2:
+        if not places(m, s) or prepared[k] is None:
             continue
         for place in [m.transform_m] + list(m.other_places_m):
             # the best place first; the others where the best is an alias of a repetitive building (the true
             # place, contradicted by the broken member, ranked below it)
+            union_support = m.best.support if own and place is m.transform_m and too_contradicted(m.best, s) \
+                else None
             agreeing, contradicting = judge_members(k, place, members, footprints, footprint_of(k, place),
-                                                    prepared, s, verified=verified)
+                                                    prepared, s, verified=verified, union_support=union_support)
             if len(contradicting) == 1 and len(agreeing) >= MIN_AGREEING:
                 break
         else:

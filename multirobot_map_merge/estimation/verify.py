@@ -321,12 +321,17 @@ def plausible(c: Placement, s: EstimationSettings) -> bool:
             and not too_contradicted(c, s))
 
 
+def structural_conflicts(c: Placement) -> int:
+    """The walls that contradict well inside both maps' views and are neither small movable pieces nor in a gap of
+    a wall: structure that one of the maps does not have there."""
+    return c.deep_conflicts - c.movable_conflicts - c.gap_conflicts
+
+
 def too_contradicted(c: Placement, s: EstimationSettings) -> bool:
     """Whether the walls that contradict well inside both maps' views say the placement is wrong: more structure
     (long pieces of wall) than max_deep_conflicts of the agreeing walls, or more small movable pieces than
     max_movable_conflicts (a little clutter moved between passes; a building full of it is no evidence)."""
-    structural = c.deep_conflicts - c.movable_conflicts - c.gap_conflicts
-    return (structural > s.max_deep_conflicts * c.support
+    return (structural_conflicts(c) > s.max_deep_conflicts * c.support
             or c.movable_conflicts > s.max_movable_conflicts * c.support
             or c.gap_conflicts > s.max_gap_conflicts * c.support)
 
