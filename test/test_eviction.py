@@ -369,3 +369,24 @@ def test_a_member_too_small_to_judge_as_a_pair_contradicts_where_its_walls_alone
     large = int(c.deep_conflicts / s.max_deep_conflicts) + 1   # a support on the union that tolerates them
     assert judge_members(3, np.eye(3), members, footprints, box, prepared, s, strict=False,
                          union_support=large) == ([1, 2], [])
+
+
+def test_the_maps_of_a_group_whose_member_joined_the_merge_are_searched_onto_it():
+    """search_left_out(also=...) searches maps whose matches never found the merge (their group grew apart from
+    it), and estimator.group_mates names them: the maps of another group that has a member in the merge now (the
+    held-out school36_v: a side group joined at the end, and three maps of a group its maps had been in stayed out,
+    each placed right by a search onto the final merge)."""
+    from multirobot_map_merge.estimation.estimator import group_mates
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 40, 200), seen(world, 0, 120), seen(world, 60, 210)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    grower.found = {}
+    other = grower.group(2)
+    other.union.add(3, grids[3], grower.prepared[3], np.eye(3))
+    alone = grower.group(3)
+    assert group_mates([group, other, alone], group) == [3]
+    assert group_mates([group, alone], group) == []
+    assert grower.search_left_out(group) == 0 and 3 not in group.members
+    assert grower.search_left_out(group, also=[3]) == 1 and 3 in group.members
+    rot, shift = tf.difference(group.members[3], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+    assert rot < 0.01 and shift < 0.1

@@ -713,7 +713,7 @@ class Grower:
             todo.append(k)
         return todo
 
-    def search_left_out(self, group: Group, readmit: bool = False) -> int:
+    def search_left_out(self, group: Group, readmit: bool = False, also: Sequence[int] = ()) -> int:
         """Search the grids left out of the merge (`group`; not those evicted) whose refused match found where they
         overlap its members (the others the growth searched onto it, _search), whether or not the growth searched them
         since, and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's
@@ -737,6 +737,8 @@ class Grower:
         last placement overlaps, or any member has left and its last search found no place (nothing on
         min_overlap_m2). The searches refine the search's best distinct places too (match_pair's distinct_places).
 
+        With `also`, it searches those grids as well (not members, not evicted), whatever their matches found.
+
         With `readmit`, it searches the members taken out instead (evict_contradicted), once the maps left out have
         had their rounds: a member one map singled out can be right and that map wrong (the generated radial hall: a
         broken map placed at the hub by one part voted out the right map that had seen the hub); it joins again by
@@ -748,6 +750,8 @@ class Grower:
             todo = sorted(k for k in self.evicted if k not in group.members and self.prepared[k] is not None)
         else:
             todo = self._left_out_todo(group)
+            todo += sorted(k for k in set(also) - set(todo) if k not in group.members and k not in self.evicted
+                           and self.prepared[k] is not None)
         self.left_out_footprints.update(group.union.footprints)
         joined, placed = 0, []
         for _ in range(LEFT_OUT_ROUNDS):
