@@ -64,13 +64,12 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
             if verified is not None:
                 verified[key] = c
         if c.overlap_m2 < s.min_overlap_m2 or c.support + c.conflicts < s.min_support:
-            if union_support is not None and c.agreement < s.min_agreement \
-                    and structural_conflicts(c) > s.max_deep_conflicts * union_support:
-                contradicting.append(j)
-                if len(contradicting) > 1:
-                    break
-            continue
-        if plausible(c, s):
+            # too little in common to judge as a pair, unless its contradictions alone refuse k on the union
+            if union_support is None or c.agreement >= s.min_agreement \
+                    or structural_conflicts(c) <= s.max_deep_conflicts * union_support:
+                continue
+            contradicting.append(j)
+        elif plausible(c, s):
             agreeing.append(j)
         elif strict or c.agreement < s.min_agreement or too_contradicted(c, s):
             contradicting.append(j)

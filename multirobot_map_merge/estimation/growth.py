@@ -400,7 +400,7 @@ class Grower:
             failed = (k, group.key) in self.failed_searches
             if failed and not self.again:
                 continue   # again once the group has grown as far as it can otherwise (search_again)
-            if self._searched_since(k, group, members) is True:
+            if self._searched_since(k, group, members):
                 continue   # searched before (maybe in an earlier estimation), and neither has changed much since
             if not failed and any(members <= group.members.keys() for members in self.found.get(k, ())):
                 # a refused match found where it overlaps some of the members and the maps disagree there (a search
