@@ -119,10 +119,12 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
                          peaks_per_angle: int = 2, keep: int = 8, penalty: float = PENALTY,
                          free_reward: float = FREE_REWARD,
                          wanted: Optional[Callable[[np.ndarray], bool]] = None, threads: int = 1,
-                         screen_angles: int = SCREEN_ANGLES, distinct_places: bool = False) -> List[np.ndarray]:
+                         screen_angles: int = SCREEN_ANGLES, distinct_places: bool = False,
+                         angles: Optional[Sequence[float]] = None) -> List[np.ndarray]:
     """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
     accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle. With
-    `distinct_places`, after them the best peak of each of the `keep` best places that they miss (Places).
+    `distinct_places`, after them the best peak of each of the `keep` best places that they miss (Places). With
+    `angles` (radians), only those are correlated, at the factor, unscreened.
 
     Coarse to fine: every angle is correlated at SCREEN_COARSER times the factor first (less than half the
     pixels), and only the `screen_angles` angles of its best peaks again at the factor (0: every angle at the
@@ -131,9 +133,10 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     ranked 21st among the screen's angles, and 7 of 455 searches on three recorded demo runs missed the truth
     (none unscreened or at 1.5 times). The angles are shared among `threads` threads (OpenCV's DFT releases the
     GIL: 1.8 times faster on two cores)."""
-    angles = None
     screen_factor = int(round(SCREEN_COARSER * factor))
-    if screen_angles > 0 and screen_factor > factor \
+    if angles is not None:
+        angles = list(angles)
+    elif screen_angles > 0 and screen_factor > factor \
             and min(pi.work.shape + pj.work.shape) >= screen_factor * SCREEN_MIN_PIXELS:
         screened = _correlate(pi, pj, screen_factor, sweep_degrees, peaks_per_angle, 2 * screen_angles, penalty,
                               free_reward, None, threads, None)
