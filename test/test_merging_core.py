@@ -713,18 +713,23 @@ def test_the_alike_ends_of_one_room_are_not_taken_for_each_other_on_early_maps(r
     assert rot < 1.0 and cells < 3.0, (rot, cells)
 
 
+def _two_maps_with_truth(folder):
+    """The two maps of a test/data folder with a truth.json, the true transform (metric: the first map -> the
+    second), the default settings and both maps prepared."""
+    truth = json.loads((folder / 'truth.json').read_text())
+    first, second = (load_map(str(folder / m['file'])) for m in truth['maps'])
+    true_m = tf.inverse(tf.rigid(*truth['maps'][1]['pose'])) @ tf.rigid(*truth['maps'][0]['pose'])
+    s = EstimationSettings()
+    return first, second, true_m, s, prepare(first, 0.05, s.feature), prepare(second, 0.05, s.feature)
+
+
 def test_a_descriptor_placement_slid_along_racks_meets_the_truth_at_its_angle(repo_root, monkeypatch):
     """test/data/warehouse_rack_slide: two healthy maps of a generated warehouse (held-out warehouse36_u, maps 5 and
     1) sharing 109 m2 among rows of racks. Their descriptors' one model is an alias 3.9 m along the racks (agreement
     0.997 over 106 m2), and it was accepted (a false merge of the estimation); the correlation at its angle alone
     finds the truth, and the match is no longer accepted at the alias."""
     from multirobot_map_merge.estimation import pair
-    folder = repo_root / 'test' / 'data' / 'warehouse_rack_slide'
-    truth = json.loads((folder / 'truth.json').read_text())
-    robot, other = (load_map(str(folder / m['file'])) for m in truth['maps'])
-    true_m = tf.inverse(tf.rigid(*truth['maps'][1]['pose'])) @ tf.rigid(*truth['maps'][0]['pose'])
-    s = EstimationSettings()
-    pr, po = prepare(robot, 0.05, s.feature), prepare(other, 0.05, s.feature)
+    robot, _, true_m, s, pr, po = _two_maps_with_truth(repo_root / 'test' / 'data' / 'warehouse_rack_slide')
 
     def off(transform_px) -> tuple:
         return _corner_error(robot, po.px_to_map @ transform_px @ tf.inverse(pr.px_to_map), true_m)
@@ -804,12 +809,7 @@ def test_the_search_refines_distinct_places_so_that_the_truth_behind_repeated_al
     searches, growth.py)."""
     from multirobot_map_merge.estimation import search
     from multirobot_map_merge.estimation.pair import match_pair
-    folder = repo_root / 'test' / 'data' / 'office_alias'
-    truth = json.loads((folder / 'truth.json').read_text())
-    robot, union = (load_map(str(folder / m['file'])) for m in truth['maps'])
-    true_m = tf.inverse(tf.rigid(*truth['maps'][1]['pose'])) @ tf.rigid(*truth['maps'][0]['pose'])
-    s = EstimationSettings()
-    pr, pu = prepare(robot, 0.05, s.feature), prepare(union, 0.05, s.feature)
+    robot, _, true_m, s, pr, pu = _two_maps_with_truth(repo_root / 'test' / 'data' / 'office_alias')
 
     def near_truth(distinct_places: bool) -> bool:
         models = search.correlate_candidates(pr, pu, s.search_factor, s.search_sweep_degrees, keep=s.search_keep,
