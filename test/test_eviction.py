@@ -390,3 +390,25 @@ def test_the_maps_of_a_group_whose_member_joined_the_merge_are_searched_onto_it(
     assert grower.search_left_out(group, also=[3]) == 1 and 3 in group.members
     rot, shift = tf.difference(group.members[3], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
     assert rot < 0.01 and shift < 0.1
+
+
+def test_a_member_taken_out_joins_again_in_place_of_a_map_that_joined_on_weaker_evidence():
+    """search_left_out(readmit=True): a broken map left out can vote out a right member and join in its place by one
+    of its parts (held-out office36_u: map_06 over 33 m2 with 3 members, where map_34 had agreed with 19 over 264 m2).
+    Searched again, the member agrees with more members on more walls than that map did when it joined, and is
+    contradicted by it alone: it joins, and the map leaves. A map that joined on more evidence keeps its place."""
+    world = stubbed_building()
+
+    def top(c0: int, c1: int) -> Grid:   # a view of the hall's upper half
+        grid = seen(world, c0, c1)
+        grid.data[110:, :] = -1
+        return grid
+    broken = seen(world, 100, 200)
+    broken.data[185:199, 150] = 100   # a stub of wall on floor that only map 2 among the others saw
+    grids = [top(0, 170), top(130, 300), seen(world, 0, 300), broken]
+    for evidence, members in (((1, 150), [0, 1, 2]), ((10, 10 ** 6), [0, 1, 3])):
+        grower, group = _merge_of(grids, [0, 1, 2, 3])
+        grower._evict(group, 2, 'singled out by one map')
+        grower.left_out_joined[3] = evidence   # map 3 joined by search_left_out, agreeing with 1 member on 150 walls
+        grower.search_left_out(group, readmit=True)
+        assert sorted(group.members) == members
