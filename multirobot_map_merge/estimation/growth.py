@@ -771,7 +771,7 @@ class Grower:
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
                                                         self.s, strict=False, verified=self.judged)
-                if len(agreeing) >= MIN_AGREEING and self._outweighs(m, agreeing, contradicting):
+                if len(agreeing) >= MIN_AGREEING and self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
             for m, agreeing, contradicting in joining:
                 for j in contradicting:
@@ -812,16 +812,18 @@ class Grower:
             self.left_out_members = members   # the members its last searches saw
         return joined
 
-    def _outweighs(self, m: PairMatch, agreeing: Sequence[int], contradicting: Sequence[int]) -> bool:
-        """Whether the grid that search_left_out's match m places, agreeing with the members `agreeing`, outweighs
-        the members it contradicts: none, or each joined by search_left_out too, agreeing then with fewer members
-        and on fewer walls than it does now.
+    def _outweighs(self, group: Group, m: PairMatch, agreeing: Sequence[int], contradicting: Sequence[int]) -> bool:
+        """Whether the grid that search_left_out's match m places onto `group`, agreeing with the members
+        `agreeing`, outweighs the members it contradicts: none, or each joined by search_left_out too, agreeing then
+        with fewer members and on fewer walls than it does now, and neither the group's seed (m is in its frame) nor
+        the reference.
 
         A broken map left out, placed by one of its parts, can vote out a right member (evict_contradicted) and join
         in its place: held-out office36_u, broken map_06 (58.8 m2) agreed with 3 members over 33 m2 and contradicted
         map_34 alone, which left; searched again, map_34 agreed 0.99 with 19 members over 264 m2 (6719 walls, map_06
         782) and was contradicted by map_06 alone. Members of the growth are judged by evict_contradicted's votes."""
-        return all(j in self.left_out_joined and self.left_out_joined[j][0] < len(agreeing)
+        return all(j in self.left_out_joined and j not in (group.seed, self.reference)
+                   and self.left_out_joined[j][0] < len(agreeing)
                    and self.left_out_joined[j][1] < m.best.support for j in contradicting)
 
     def _placed_again(self, m: PairMatch, union: PreparedGrid) -> Optional[PairMatch]:
