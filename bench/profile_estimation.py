@@ -11,11 +11,12 @@ estimation alone, of the estimation with its defaults (matches on worker process
 in two processes at once: what the second core can give. With --phases it also prints where the wall time of an
 estimation with its defaults goes, as its main thread sees it: waiting for the batches of matches and the group
 matches made ahead (both on the workers), and the work it does alone (group matches, single-grid searches, the
-search of the maps left out and the relaxation at the end, the rest); and how busy the batches kept the worker
+searches at the end of the maps left out and of the members a search placed, the relaxation, the rest); and how busy the batches kept the worker
 processes (the share of the batches' wall time they spent reading grids and matching). With --kinds it also prints
 the CPU of each kind of match in a serial estimation without the profiler (KINDS: by the growth's method that asked
 for it): how many, how many accepted, their CPU and its share of the estimation's (a grid's keypoints are detected
-in the first match that needs them).
+in the first match that needs them); and the costliest kinds by verdict (accepted, or the reason of the refusal)
+and whether a correlation search ran, with the search's own CPU.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ PARTS = [('ICP', ('refine.py', 'icp')), ('verification', ('verify.py', 'verify')
 # the main thread's phases of an estimation with its defaults: label, its parts ((file suffix, function), callers
 # (file suffix, function) whose calls count, None: all); cProfile sees only the main thread, so a batch on the workers
 # is the time spent waiting for its results
-PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth.py', 'grow')]),
+PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth.py', '_match_tried')]),
                                               (('workers.py', 'match_all'), [('stronger.py', 'of')]),
                                               (('_base.py', 'result_iterator'), [('growth.py', 'confirm_searches')])]),
           ('preparing the grids', [(('_base.py', 'result_iterator'), [('estimator.py', '_estimate')])]),
@@ -48,11 +49,13 @@ PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth
           ('group matches made ahead, in parallel', [(('growth.py', '_match_ahead'), None)]),
           ('single-grid searches, in parallel', [(('growth.py', '_search'), None)]),
           ('the maps left out searched again', [(('growth.py', 'search_left_out'), None)]),
+          ('search-placed members searched again', [(('searched_again.py', 'search_placed_again'), None)]),
           ('the final relaxation', [(('estimator.py', 'relax_group'), None)])]
 
 # the kinds of match (--kinds): the first of these functions found up the stack of a match_pair call names it
 # (grow: onto one grid or onto a union)
 KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out', 'the maps left out searched again'),
+         ('search_placed_again', 'members a search placed, searched again'),
          ('_match_groups', 'group matches'), ('_match_ahead', 'group matches'), ('_search', 'single-grid searches'),
          ('grow', 'growth by descriptors')]
 
@@ -85,8 +88,21 @@ else:
     workers.setLevel(logging.DEBUG)
     workers.addHandler(Said())
 if kinds:
-    import multirobot_map_merge.estimation.workers as workers
+    import re
+    import multirobot_map_merge.estimation.pair as pair, multirobot_map_merge.estimation.workers as workers
     spent = collections.defaultdict(lambda: [0, 0, 0.0])   # kind -> matches, accepted, CPU s
+    # (kind, verdict, searched) -> matches, CPU s, of it the correlation search's
+    verdicts = collections.defaultdict(lambda: [0, 0.0, 0.0])
+    searching = [0, 0.0]   # correlation searches of the match being made, their CPU s
+    correlate = pair.correlate_candidates
+    def correlate_timed(*args, **options):
+        started = time.process_time()
+        found = correlate(*args, **options)
+        if options.get('angles') is None:   # not the correlation at the best's angle alone (slid alternatives)
+            searching[0] += 1
+            searching[1] += time.process_time() - started
+        return found
+    pair.correlate_candidates = correlate_timed
     match_pair = workers.match_pair
     def timed(i, j, pi, pj, s, **options):
         frame, kind = sys._getframe(1), 'other'
@@ -96,12 +112,20 @@ if kinds:
             frame = frame.f_back
         if kind == 'growth by descriptors':
             kind += ', onto a union' if options.get('onto_union') else ', onto one grid'
+        searching[:] = [0, 0.0]
         started = time.process_time()
         m = match_pair(i, j, pi, pj, s, **options)
+        took = time.process_time() - started
         row = spent[kind]
         row[0] += 1
         row[1] += bool(m.accepted)
-        row[2] += time.process_time() - started
+        row[2] += took
+        # the verdict: accepted, or the refusal's reason without its figures
+        verdict = 'accepted' if m.accepted else re.sub(r'[-+]?[0-9][0-9.]*', '#', m.reason or '').split(':')[0][:38]
+        row = verdicts[(kind, verdict, searching[0] > 0)]
+        row[0] += 1
+        row[1] += took
+        row[2] += searching[1]
         return m
     workers.match_pair = timed
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
@@ -118,6 +142,18 @@ if kinds:
               f'{{100 * seconds / cpu:5.1f}} %')
     rest = cpu - sum(row[2] for row in spent.values())
     print(f'  {{"the rest (no match)":45s}}                          {{rest:6.2f}} s CPU {{100 * rest / cpu:5.1f}} %')
+    def total(accepted, searched):
+        rows = [v for (_, verdict, was), v in verdicts.items()
+                if (verdict == 'accepted') == accepted and (searched is None or was == searched)]
+        return sum(r[1] for r in rows), sum(r[2] for r in rows)
+    for label, accepted in (('accepted', True), ('refused', False)):
+        (all_s, _), (searched_s, search_s) = total(accepted, None), total(accepted, True)
+        print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a search '
+              f'ran ({{search_s:.2f}} s the search itself)')
+    print('  by verdict (the 12 costliest; searched: a correlation search over all angles ran, its CPU in brackets):')
+    for (kind, verdict, searched), (n, seconds, search) in sorted(verdicts.items(), key=lambda kv: -kv[1][1])[:12]:
+        what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
+        print(f'    {{what:84s}} {{n:4d}} matches {{seconds:6.2f}} s CPU ({{search:5.2f}}) {{100 * seconds / cpu:5.1f}} %')
 print(time.perf_counter() - wall)
 '''
 
