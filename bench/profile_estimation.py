@@ -11,12 +11,13 @@ estimation alone, of the estimation with its defaults (matches on worker process
 in two processes at once: what the second core can give. With --phases it also prints where the wall time of an
 estimation with its defaults goes, as its main thread sees it: waiting for the batches of matches and the group
 matches made ahead (both on the workers), and the work it does alone (group matches, single-grid searches, the
-searches at the end of the maps left out and of the members a search placed, the relaxation, the rest); and how busy the batches kept the worker
-processes (the share of the batches' wall time they spent reading grids and matching). With --kinds it also prints
-the CPU of each kind of match in a serial estimation without the profiler (KINDS: by the growth's method that asked
-for it): how many, how many accepted, their CPU and its share of the estimation's (a grid's keypoints are detected
-in the first match that needs them); and the costliest kinds by verdict (accepted, or the reason of the refusal)
-and whether a correlation search ran, with the search's own CPU.
+searches at the end of the maps left out and of the members a search placed, the relaxation, the rest); and how busy
+the batches kept the worker processes (the share of the batches' wall time they spent reading grids and matching).
+With --kinds it also prints the CPU of each kind of match in a serial estimation without the profiler (KINDS: by
+the growth's method that asked for it): how many, how many accepted, their CPU and its share of the estimation's (a
+grid's keypoints are detected in the first match that needs them); the CPU of the accepted and the refused matches,
+and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted,
+or the reason of the refusal) and whether a correlation search ran.
 """
 from __future__ import annotations
 
@@ -90,7 +91,6 @@ else:
 if kinds:
     import re
     import multirobot_map_merge.estimation.pair as pair, multirobot_map_merge.estimation.workers as workers
-    spent = collections.defaultdict(lambda: [0, 0, 0.0])   # kind -> matches, accepted, CPU s
     # (kind, verdict, searched) -> matches, CPU s, of it the correlation search's
     verdicts = collections.defaultdict(lambda: [0, 0.0, 0.0])
     searching = [0, 0.0]   # correlation searches of the match being made, their CPU s
@@ -116,10 +116,6 @@ if kinds:
         started = time.process_time()
         m = match_pair(i, j, pi, pj, s, **options)
         took = time.process_time() - started
-        row = spent[kind]
-        row[0] += 1
-        row[1] += bool(m.accepted)
-        row[2] += took
         # the verdict: accepted, or the refusal's reason without its figures
         verdict = 'accepted' if m.accepted else re.sub(r'[-+]?[0-9][0-9.]*', '#', m.reason or '').split(':')[0][:38]
         row = verdicts[(kind, verdict, searching[0] > 0)]
@@ -137,23 +133,29 @@ else:
     estimator.estimate(grids, settings)
 if kinds:
     cpu = time.process_time() - cpu
+    spent = collections.defaultdict(lambda: [0, 0, 0.0])   # kind -> matches, accepted, CPU s
+    for (kind, verdict, _), (n, seconds, _) in verdicts.items():
+        row = spent[kind]
+        row[0] += n
+        row[1] += n if verdict == 'accepted' else 0
+        row[2] += seconds
     for kind, (n, accepted, seconds) in sorted(spent.items(), key=lambda kv: -kv[1][2]):
         print(f'  {{kind:45s}} {{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU '
               f'{{100 * seconds / cpu:5.1f}} %')
     rest = cpu - sum(row[2] for row in spent.values())
     print(f'  {{"the rest (no match)":45s}}                          {{rest:6.2f}} s CPU {{100 * rest / cpu:5.1f}} %')
-    def total(accepted, searched):
-        rows = [v for (_, verdict, was), v in verdicts.items()
-                if (verdict == 'accepted') == accepted and (searched is None or was == searched)]
-        return sum(r[1] for r in rows), sum(r[2] for r in rows)
     for label, accepted in (('accepted', True), ('refused', False)):
-        (all_s, _), (searched_s, search_s) = total(accepted, None), total(accepted, True)
-        print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a search '
-              f'ran ({{search_s:.2f}} s the search itself)')
+        rows = [(v, searched) for (_, verdict, searched), v in verdicts.items() if (verdict == 'accepted') == accepted]
+        all_s = sum(v[1] for v, _ in rows)
+        searched_s = sum(v[1] for v, searched in rows if searched)
+        search_s = sum(v[2] for v, _ in rows)   # none where no search ran
+        print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a '
+              f'search ran ({{search_s:.2f}} s the search itself)')
     print('  by verdict (the 12 costliest; searched: a correlation search over all angles ran, its CPU in brackets):')
     for (kind, verdict, searched), (n, seconds, search) in sorted(verdicts.items(), key=lambda kv: -kv[1][1])[:12]:
         what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
-        print(f'    {{what:84s}} {{n:4d}} matches {{seconds:6.2f}} s CPU ({{search:5.2f}}) {{100 * seconds / cpu:5.1f}} %')
+        print(f'    {{what:84s}} {{n:4d}} matches {{seconds:6.2f}} s CPU ({{search:5.2f}}) '
+              f'{{100 * seconds / cpu:5.1f}} %')
 print(time.perf_counter() - wall)
 '''
 
