@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from multirobot_map_merge import transforms as tf
+from multirobot_map_merge import cli, transforms as tf
 from multirobot_map_merge.cli import main as merge_maps
 from multirobot_map_merge.compose import PatchCache, compose
 from multirobot_map_merge.estimation.features import prepare
@@ -262,6 +262,14 @@ def test_merge_maps_cli_seed_gives_the_same_merge_every_time(repo_root, tmp_path
     for k in range(3):
         rot, cells = placement_error(truth, est, 0, k)
         assert rot <= 1.5 and cells <= 3
+
+
+@pytest.mark.parametrize('cores, expected', [({0}, 1), ({0, 1, 2}, 3), (set(range(16)), cli.MAX_DEFAULT_THREADS)])
+def test_merge_maps_matches_on_the_cores_it_may_use_by_default(monkeypatch, cores, expected):
+    """--threads defaults to the CPU affinity's cores (a container's or taskset's share), at most MAX_DEFAULT_THREADS."""
+    monkeypatch.setattr(cli.os, 'sched_getaffinity', lambda pid: cores, raising=False)
+    assert cli.parse_args(['m.yaml']).threads == expected
+    assert cli.parse_args(['--threads', '2', 'm.yaml']).threads == 2
 
 
 def test_merge_maps_cli_known_poses_and_no_overlap(repo_root, tmp_path):

@@ -50,6 +50,16 @@ def test_processes_place_the_maps_as_threads_do(repo_root):
     _same(on_processes, on_threads)
 
 
+def test_the_placements_do_not_depend_on_the_number_of_workers(repo_root):
+    """merge_maps starts as many workers as the machine has cores (at most 4): a batch's matches land on other
+    workers in another order, and each comes back to its place in the batch."""
+    grids = _maps(repo_root)
+    two = estimate(grids, EstimationSettings(processes=True, threads=2))
+    three = estimate(grids, EstimationSettings(processes=True, threads=3))
+    assert sum(t is not None for t in two.transforms) >= 3
+    _same(three, two)
+
+
 def test_a_prepared_grid_travels_whole(repo_root):
     grid = prepare(_maps(repo_root)[0], 0.05, 'akaze')
     copy = pickle.loads(pickle.dumps(grid))
