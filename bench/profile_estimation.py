@@ -2,6 +2,7 @@
 """Where one estimation's time goes, and what a second core gives it (not a test: it prints figures).
 
     scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases] [--kinds]
+    scripts/env.sh python bench/profile_estimation.py [MAPS] --cores
 
 MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
 estimation runs serially (its thread pools replaced by loops, no worker processes, OpenCV on one thread) under
@@ -18,6 +19,11 @@ the growth's method that asked for it): how many, how many accepted, their CPU a
 grid's keypoints are detected in the first match that needs them); the CPU of the accepted and the refused matches,
 and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted,
 or the reason of the refusal) and whether a correlation search ran.
+With --cores it prints only the CPU of a serial estimation and of one with its defaults, neither under the profiler:
+the estimating process's and its worker processes', their ratio to the serial CPU (what the processes add: the grids
+written and read, the workers' own caches, the threads of the estimating process), and the cores the estimation kept
+busy on average (that CPU over its wall time; a core idles while the estimating process works alone between
+batches, or while one worker ends a batch).
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ import pstats
 import subprocess
 import sys
 from pathlib import Path
+from typing import List, Tuple
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MAPS = REPO / 'out' / 'bench' / 'hospital36'
@@ -66,7 +73,7 @@ KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out',
 ONE = '''
 import cProfile, collections, glob, sys, time
 sys.path.insert(0, {root!r})
-serial, profile, kinds = {serial!r}, {profile!r}, {kinds!r}
+serial, profile, kinds, cores = {serial!r}, {profile!r}, {kinds!r}, {cores!r}
 import cv2
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -156,24 +163,47 @@ if kinds:
         what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
         print(f'    {{what:84s}} {{n:4d}} matches {{seconds:6.2f}} s CPU ({{search:5.2f}}) '
               f'{{100 * seconds / cpu:5.1f}} %')
+if cores:   # the CPU of this process and of its worker processes (utime + stime), before the pool ends with it
+    import os
+    from multirobot_map_merge.estimation import workers as pool
+    executor = pool._POOL._executor
+    ticks = 0
+    for pid in (executor._processes if executor is not None else ()):
+        with open(f'/proc/{{pid}}/stat') as f:
+            ticks += sum(int(v) for v in f.read().rsplit(')', 1)[1].split()[11:13])
+    print(f'cpu {{time.process_time() - cpu}} {{ticks / os.sysconf("SC_CLK_TCK")}}')
 print(time.perf_counter() - wall)
 '''
 
 
-def run(maps: Path, serial: bool, profile: str = '', kinds: bool = False) -> subprocess.Popen:
-    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile, kinds=KINDS if kinds else [])
+def run(maps: Path, serial: bool, profile: str = '', kinds: bool = False, cores: bool = False) -> subprocess.Popen:
+    code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile, kinds=KINDS if kinds else [],
+                      cores=cores)
     return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
 
 
 def seconds(process: subprocess.Popen) -> float:
     """The wall time the estimation printed last; what it printed before that is printed here."""
+    return _lines(process)[1]
+
+
+def cpu_seconds(maps: Path, serial: bool) -> Tuple[float, float, float]:
+    """One estimation without the profiler: its wall time, the CPU of its process and of its worker processes."""
+    said, wall = _lines(run(maps, serial, cores=True))
+    main, workers = (float(v) for v in said[-1].split()[1:])
+    return wall, main, workers
+
+
+def _lines(process: subprocess.Popen) -> Tuple[List[str], float]:
+    """What the estimation printed before its wall time, and that time; lines other than its CPU are printed."""
     out, _ = process.communicate()
     if process.returncode:
         sys.exit(f'profile_estimation: the estimation failed (exit {process.returncode})')
     *said, last = out.rstrip().split('\n')
-    if said:
-        print('\n'.join(said))
-    return float(last)
+    shown = [line for line in said if not line.startswith('cpu ')]
+    if shown:
+        print('\n'.join(shown))
+    return said, float(last)
 
 
 def cumulative(stats: dict, suffix: str, name: str, callers=None) -> float:
@@ -197,9 +227,19 @@ def main() -> None:
     ap.add_argument('--threads-gain', action='store_true', help='also time the defaults and two processes')
     ap.add_argument('--phases', action='store_true', help='also split an estimation with its defaults into phases')
     ap.add_argument('--kinds', action='store_true', help='also the CPU of each kind of match, serially')
+    ap.add_argument('--cores', action='store_true',
+                    help='only the CPU of a serial estimation and of one with its defaults (its process and its '
+                         'workers), and the cores it kept busy on average')
     args = ap.parse_args()
     if not glob.glob(str(args.maps / 'map_*.yaml')):
         sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
+    if args.cores:
+        wall, serial, _ = cpu_seconds(args.maps, True)
+        print(f'{args.maps.name}: serial {wall:.2f} s, CPU {serial:.2f} s')
+        wall, main, workers = cpu_seconds(args.maps, False)
+        print(f'{args.maps.name}: with its defaults {wall:.2f} s, CPU {main:.2f} s + {workers:.2f} s on its workers '
+              f'({(main + workers) / serial:.2f} x the serial), {(main + workers) / wall:.2f} cores busy on average')
+        return
     out = Path('/tmp') / f'profile_estimation_{args.maps.name}.prof'
     total = seconds(run(args.maps, True, str(out)))
     stats = pstats.Stats(str(out)).stats
