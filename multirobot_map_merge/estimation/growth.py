@@ -770,7 +770,7 @@ class Grower:
                     continue
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
-                                                        self.s, strict=False, verified=self.judged)
+                                                        self.s, verified=self.judged)
                 if len(agreeing) >= MIN_AGREEING and self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
             for m, agreeing, contradicting in joining:

@@ -86,5 +86,5 @@ def _joins_there(grower, group, k: int, m) -> bool:
     others = {j: t for j, t in group.members.items() if j != k}
     agreeing, contradicting = judge_members(k, m.transform_m, others, group.union.footprints,
                                             footprint(grower.grids[k], m.transform_m), grower.prepared, grower.s,
-                                            strict=False, verified=grower.judged)
+                                            verified=grower.judged)
     return len(agreeing) >= MIN_AGREEING and not contradicting

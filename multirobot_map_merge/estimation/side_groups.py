@@ -113,7 +113,7 @@ def _meeting(grower, group, them, to_merge: np.ndarray) -> Tuple[List[int], List
         placed = to_merge @ t
         agreeing, contradicting = judge_members(k, placed, group.members, group.union.footprints,
                                                 footprint(grower.grids[k], placed), grower.prepared, grower.s,
-                                                strict=False, verified=grower.judged)
+                                                verified=grower.judged)
         if contradicting:
             contradicted.append(k)
         elif len(agreeing) >= MIN_AGREEING:

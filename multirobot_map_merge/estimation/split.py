@@ -7,7 +7,7 @@ placements it gave them: in a generated campus held out of the benchmarks, broke
 the merge, left it, and 14 maps stayed 13.4 degrees off the other 13.
 
 So after a member leaves, the group keeps the members that hold together through members that agree as pairs
-(eviction.judge_members, not strict), the part with the preferred reference or else the largest; every other part
+(eviction.judge_members), the part with the preferred reference or else the largest; every other part
 becomes a group of its own, to be matched onto the others as groups are (Grower.merge_groups).
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ def parts_of(grower, group) -> List[Set[int]]:
     for k, t in members.items():
         others = {j: u for j, u in members.items() if j != k}
         agreeing, _ = judge_members(k, t, others, group.union.footprints, footprint(grower.grids[k], t),
-                                    grower.prepared, grower.s, strict=False, verified=grower.judged)
+                                    grower.prepared, grower.s, verified=grower.judged)
         for j in agreeing:
             edges[k].add(j)
             edges[j].add(k)
