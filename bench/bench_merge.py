@@ -228,10 +228,12 @@ def ensure_generated(cache: Path, name: str) -> Optional[float]:
 MERGE_OPTIONS: List[str] = []   # more options of merge_maps (--no-processes)
 
 
-def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, seed: int = 0) -> Optional[dict]:
+def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, seed: int = 0,
+                    reverse: bool = False) -> Optional[dict]:
     """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
     with the shared scorer; None if the scorer is missing or a step failed. With log, merge_maps runs with -v and
-    its stderr (each match judged, with its reason) goes to that file; `seed`: merge_maps --seed."""
+    its stderr (each match judged, with its reason) goes to that file; `seed`: merge_maps --seed; `reverse`: the maps
+    given in the reverse order of the truth's (the scorer finds them by file name)."""
     score_py = SHARED_EVAL / 'score.py'
     if not score_py.is_file():
         print(f'bench_merge: {score_py} not found: not scored', file=sys.stderr)
@@ -242,7 +244,7 @@ def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, see
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
     merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
              '--output', str(out_dir / 'merged'), '--seed', str(seed), *(['-v'] if log else []), *MERGE_OPTIONS,
-             *(str(folder / m['file']) for m in truth['maps'])]
+             *(str(folder / m['file']) for m in (truth['maps'][::-1] if reverse else truth['maps']))]
     print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
     with open(log, 'w') if log else open(os.devnull, 'w') as err:
         code = subprocess.run(merge, env=env, stdout=subprocess.DEVNULL, stderr=err if log else None).returncode
@@ -255,6 +257,14 @@ def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, see
         print('bench_merge: score.py failed', file=sys.stderr)
         return None
     return json.loads(proc.stdout)
+
+
+def reversed_truth(truth: dict) -> dict:
+    """The truth of the same maps given to merge_maps in reverse order: its indices (a map's place in the list, as
+    merge_maps -v names the maps) count in that order."""
+    n = len(truth['maps'])
+    return dict(truth, maps=truth['maps'][::-1], mergeable=sorted(n - 1 - k for k in truth['mergeable']),
+                components=[sorted(n - 1 - k for k in c) for c in truth.get('components', [])])
 
 
 def scenario_lines(truth: dict) -> List[str]:
@@ -359,11 +369,11 @@ def run_seeds(names: List[str], cache: Path, markdown: Optional[Path], again: bo
 
 
 def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False, seed: int = 0,
-                  out_rows: Optional[List[dict]] = None) -> int:
-    """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process), scored;
-    one row each (also appended to `out_rows`), the median and worst estimation, then why each mergeable map left out
-    or placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
-    and the final union)."""
+                  out_rows: Optional[List[dict]] = None, reverse: bool = False) -> int:
+    """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process; with
+    `reverse`, its maps given in reverse order), scored; one row each (also appended to `out_rows`), the median and
+    worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis; with again, each
+    such map is also matched again against right-placed maps and the final union)."""
     import make_sample_maps
     from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
@@ -377,9 +387,11 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
             continue
         folder = cache / name
         truth = json.loads((folder / 'truth.json').read_text())
-        result_dir = cache / (f'{name}_result' if seed == 0 else f'{name}_result_seed{seed}')
+        if reverse:
+            truth = reversed_truth(truth)
+        result_dir = cache / (f'{name}_result' + (f'_seed{seed}' if seed else '') + ('_reversed' if reverse else ''))
         log = result_dir / 'merge_maps.log'
-        scored = merge_and_score(folder, result_dir, log, seed)
+        scored = merge_and_score(folder, result_dir, log, seed, reverse)
         spec = make_sample_maps.GENERATED.get(name, {})
         pattern = spec.get('pattern', 'random')
         if scored is None:
@@ -403,7 +415,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         if out_rows is not None:
             out_rows.append(rows[-1])
     done = [r for r in rows if isinstance(r, dict)]
-    lines = [f'generated buildings ({cache}): merge_maps -v, one process per building, cold; {machine.describe()}', '',
+    order = ', each building\'s maps in reverse order' if reverse else ''
+    lines = [f'generated buildings ({cache}): merge_maps -v, one process per building, cold{order}; '
+             f'{machine.describe()}', '',
              '| building | robots | placed right / mergeable | false merges | mergeable left out | broken placed '
              'consistently | estimation (s) |', '|---|---|---|---|---|---|---|']
     for r in rows:
@@ -487,6 +501,9 @@ def main() -> int:
     ap.add_argument('--seeds', metavar='S', type=int, nargs='+', default=[0],
                     help='with --generated: merge each building once per seed of the random sampling (merge_maps '
                          '--seed), then a table of placed right and false merges per building and seed (default: 0)')
+    ap.add_argument('--reversed', action='store_true',
+                    help='with --generated: each building\'s maps given to merge_maps in reverse order (the merge '
+                         'should not depend on the order of the files)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario (or with --generated, those buildings) revealed as a fleet explores '
                          'it, estimated afresh at these shares of the reveal (comma-separated, 0..1) and scored: the '
@@ -504,6 +521,8 @@ def main() -> int:
         if unknown:
             ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
         cache = (args.large36 or REPO / 'out' / 'bench').resolve()
+        if args.reversed and (args.reveal or args.seeds != [0]):
+            ap.error('--reversed goes with --generated [--replay] alone')
         if args.reveal:
             lines = []
             for name in names:
@@ -515,7 +534,7 @@ def main() -> int:
             return 0
         if args.seeds != [0]:
             return run_seeds(names, cache, args.markdown, args.replay, args.seeds)
-        return run_buildings(names, cache, args.markdown, args.replay)
+        return run_buildings(names, cache, args.markdown, args.replay, reverse=args.reversed)
     if args.large36:
         return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)

@@ -59,3 +59,17 @@ def test_replayed_labels_say_which_match_would_place_the_map():
     assert replayed_label([('pair', True, False), ('union', False, True)]) == REPLAYED['wrong']
     assert replayed_label([('pair', False, True), ('union', False, False)]) == REPLAYED['refused']
     assert replayed_label([('union', False, False)]) == REPLAYED['no pair']
+
+
+def test_a_log_of_the_maps_given_in_reverse_order_is_read_with_the_truth_in_that_order():
+    """bench_merge.py --generated --reversed: merge_maps -v names a map by its place in the list it was given, so the
+    diagnosis reads the log with the truth reversed (bench_merge.reversed_truth)."""
+    from bench_merge import reversed_truth
+    truth, scored = scenario(4, [0, 1, 3], [(0, True), (1, True)])
+    truth['components'] = [[0, 1, 3]]
+    back = reversed_truth(truth)
+    assert [m['file'] for m in back['maps']] == ['map_03.yaml', 'map_02.yaml', 'map_01.yaml', 'map_00.yaml']
+    assert back['mergeable'] == [0, 2, 3] and back['components'] == [[0, 2, 3]]
+    # map_03, given first, refused onto the group of map_00, given last
+    [verdict] = diagnose(log((0, 3, 0.8, 30.0, 'agreement 0.80 < 0.91')), scored, back)
+    assert (verdict.map_index, verdict.outcome, verdict.cause) == (0, 'left out', 'agreement')
