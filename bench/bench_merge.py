@@ -229,22 +229,22 @@ MERGE_OPTIONS: List[str] = []   # more options of merge_maps (--no-processes)
 
 
 def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, seed: int = 0,
-                    reverse: bool = False) -> Optional[dict]:
+                    truth: Optional[dict] = None) -> Optional[dict]:
     """Run nodes/merge_maps on the scenario's maps (one cold estimation in its own process) and score its placements
     with the shared scorer; None if the scorer is missing or a step failed. With log, merge_maps runs with -v and
-    its stderr (each match judged, with its reason) goes to that file; `seed`: merge_maps --seed; `reverse`: the maps
-    given in the reverse order of the truth's (the scorer finds them by file name)."""
+    its stderr (each match judged, with its reason) goes to that file; `seed`: merge_maps --seed; the maps are given
+    in the order of `truth` (default: the scenario's truth.json; the scorer finds them by file name)."""
     score_py = SHARED_EVAL / 'score.py'
     if not score_py.is_file():
         print(f'bench_merge: {score_py} not found: not scored', file=sys.stderr)
         return None
-    truth = json.loads((folder / 'truth.json').read_text())
+    truth = truth or json.loads((folder / 'truth.json').read_text())
     out_dir.mkdir(parents=True, exist_ok=True)
     result = out_dir / 'result.json'
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH')) if p))
     merge = [sys.executable, str(REPO / 'nodes' / 'merge_maps'), '--transforms-json', str(result),
              '--output', str(out_dir / 'merged'), '--seed', str(seed), *(['-v'] if log else []), *MERGE_OPTIONS,
-             *(str(folder / m['file']) for m in (truth['maps'][::-1] if reverse else truth['maps']))]
+             *(str(folder / m['file']) for m in truth['maps'])]
     print(f'... merge_maps on {len(truth["maps"])} maps of {folder.name}', file=sys.stderr, flush=True)
     with open(log, 'w') if log else open(os.devnull, 'w') as err:
         code = subprocess.run(merge, env=env, stdout=subprocess.DEVNULL, stderr=err if log else None).returncode
@@ -391,7 +391,7 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
             truth = reversed_truth(truth)
         result_dir = cache / (f'{name}_result' + (f'_seed{seed}' if seed else '') + ('_reversed' if reverse else ''))
         log = result_dir / 'merge_maps.log'
-        scored = merge_and_score(folder, result_dir, log, seed, reverse)
+        scored = merge_and_score(folder, result_dir, log, seed, truth)
         spec = make_sample_maps.GENERATED.get(name, {})
         pattern = spec.get('pattern', 'random')
         if scored is None:
