@@ -773,3 +773,39 @@ def test_a_group_that_was_the_largest_once_is_tried_member_by_member_when_anothe
     assert set(groups[0].members) == {0, 1, 2, 3, 4}
     assert (4, frozenset({0, 1, 2, 3})) in onto and (5, frozenset({0, 1, 2, 3, 4})) in onto
     assert not any(len(g.members) > 1 for g in groups[1:])
+
+
+def test_a_grid_that_joins_a_few_maps_is_noted_and_one_that_joins_more_is_not(repo_root):
+    """Grower._join notes the grids that joined a group of stronger.FEW_MEMBERS maps or fewer (searched_again checks
+    them on the final merge); a grid that joins a larger one is judged on all its walls, and is not noted."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.stronger import FEW_MEMBERS
+    grids, poses = _sample(repo_root, 'chain3')
+    grids, poses = grids + _sample(repo_root, 'three_robots')[0], poses + _sample(repo_root, 'three_robots')[1]
+    grower = _grower_of(grids, EstimationSettings())
+    group = grower.group(0)
+    for k in range(1, len(grids)):
+        m = PairMatch(k, 0, accepted=True)
+        m.transform_m = tf.inverse(poses[0]) @ poses[k]
+        few = len(group.members) <= FEW_MEMBERS
+        grower._join(group, m)
+        assert (k in grower.placed_onto_few) == few, k
+    assert grower.placed_onto_few == set(range(1, FEW_MEMBERS + 1))
+
+
+def test_an_estimation_afresh_checks_the_maps_placed_onto_a_few_on_its_relaxed_merge(repo_root, monkeypatch):
+    """merge_maps' estimation (search_left_out) judges the members placed onto a few maps once the merge is relaxed;
+    the node's (search_left_out off: tracking checks every placement in the estimations after) does not."""
+    from multirobot_map_merge.estimation import estimator
+    grids, _ = _sample(repo_root, 'three_robots')
+    calls = []
+    relax = estimator.relax_group
+    monkeypatch.setattr(estimator, 'relax_group',
+                        lambda group, *a, **kw: calls.append('relaxed') or relax(group, *a, **kw))
+    monkeypatch.setattr(estimator, 'search_doubted_again',
+                        lambda grower, group: calls.append(set(group.members)) or [])
+    result = estimate(grids, EstimationSettings())
+    assert calls == ['relaxed', {k for k, t in enumerate(result.transforms) if t is not None}]
+    calls.clear()
+    estimate(grids, EstimationSettings(search_left_out=False))
+    assert calls == ['relaxed']

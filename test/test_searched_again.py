@@ -1,20 +1,23 @@
 """searched_again.py: a member a search placed is searched again onto the final merge without it; placed elsewhere
-by the rules of the maps left out, it moves there, and a member placed right stays."""
+by the rules of the maps left out, it moves there, and a member placed right stays. So is a member placed onto a few
+maps that the members near it contradict."""
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.searched_again import search_placed_again
+from multirobot_map_merge.estimation.searched_again import in_doubt, search_doubted_again, search_placed_again
 from test_eviction import _merge_of, seen, stubbed_building
 
 CORNERS = np.array([[0.0, 0.0], [15.0, 10.0]])
 
 
-def _merge(placed_3: np.ndarray):
+def _merge(placed_3: np.ndarray, searched: bool = True):
+    """Maps 0-2 placed right, map 3 placed by `placed_3` (the truth is the identity), as a search placed it or (not
+    `searched`) as a match onto a few maps did."""
     world = stubbed_building()
     grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 40, 160)]
     grower, group = _merge_of(grids, [0, 1, 2])
     group.union.add(3, grids[3], grower.prepared[3], placed_3)
-    grower.searched.add(3)
+    (grower.searched if searched else grower.placed_onto_few).add(3)
     return grower, group
 
 
@@ -63,3 +66,25 @@ def test_a_member_the_search_onto_the_final_merge_finds_two_places_as_good_for_l
         assert (3 in group.members) != leaves
         if leaves:
             assert AMBIGUOUS in grower.refused[3].reason and not grower.refused[3].accepted
+
+
+def test_a_member_placed_onto_a_few_maps_that_the_members_near_it_contradict_is_searched_again():
+    """Map 3 joined a group of one or a few maps 1.5 m and 2 degrees off: the members near it contradict it there,
+    and the search onto them moves it to the truth. Placed right, it is not in doubt and stays."""
+    grower, group = _merge(tf.rigid(1.5, 0.4, 0.03), searched=False)
+    assert in_doubt(grower, group) == [3]
+    assert search_doubted_again(grower, group) == [3]
+    rot, shift = tf.difference(group.members[3], np.eye(3), CORNERS)
+    assert rot < 0.01 and shift < 0.1
+    grower, group = _merge(np.eye(3), searched=False)
+    before = group.members[3].copy()
+    assert in_doubt(grower, group) == [] and search_doubted_again(grower, group) == []
+    assert np.allclose(group.members[3], before)
+
+
+def test_a_member_that_joined_a_larger_union_is_not_checked_again():
+    """Placed as wrong, but by a match onto more than a few maps (judged on all their walls): not in doubt."""
+    grower, group = _merge(tf.rigid(1.5, 0.4, 0.03), searched=False)
+    grower.placed_onto_few.clear()
+    assert in_doubt(grower, group) == [] and search_doubted_again(grower, group) == []
+    assert 3 in group.members

@@ -8,7 +8,8 @@ the costly correlation search on the grids left alone, smallest first, and is ma
 (union against union); members of a group that cannot join as a whole are tried one by one. The largest group is
 the merge, in the frame of its seed. (Searching every grid against every group as it grew cost the 36 generated
 maps 17.5 s, this 6.4 s, with two more maps placed right.) Last, the maps a search placed are judged again
-against the merge as it ends (Grower.confirm_searches): one that the maps joined since contradict leaves it.
+against the merge as it ends (Grower.confirm_searches): one that the maps joined since contradict leaves it; after
+the final relaxation of an estimation afresh, so are the maps placed onto a few maps (searched_again.py).
 
 Tracking (tracking.py): with the transforms of the last estimate (`previous`, same reference), the grids placed
 then are re-checked first; those that still hold form the first group, which the others then join as above.
@@ -35,7 +36,7 @@ from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
 from .settings import EstimationSettings
-from .searched_again import search_placed_again
+from .searched_again import search_doubted_again, search_placed_again
 from .side_groups import remember, search_side_groups
 from .tracking import move_verdict, recheck, track
 from .union import footprint, known_corners
@@ -448,6 +449,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)
+            if settings.search_left_out:
+                search_doubted_again(grower, chosen)
         elif tracked and chosen is not tracked_group:
             # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
             # never tracked, and are published once confirmed (confirmation.keep_standing)

@@ -162,6 +162,8 @@ class Grower:
         self.found: Dict[int, List[frozenset]] = {}
         self.settled = 0
         self.searched: set = set()   # grids a correlation search placed (confirm_searches)
+        # grids that joined a group of FEW_MEMBERS or fewer by their own match: judged against those alone
+        self.placed_onto_few: set = set()
         # (grid, group key) of the searches that failed in this estimation: searched again only by search_again
         self.failed_searches: set = set()
         self.again = False
@@ -834,6 +836,10 @@ class Grower:
 
     def _join(self, group: Group, m: PairMatch) -> None:
         """Grid m.i joins the group by its accepted match m."""
+        if len(group.members) <= FEW_MEMBERS:
+            self.placed_onto_few.add(m.i)
+        else:
+            self.placed_onto_few.discard(m.i)
         group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
         self.refused.pop(m.i, None)
         self._forget_search(m.i, group)
