@@ -1,4 +1,5 @@
-"""The members a correlation search placed, searched again onto the final merge without them.
+"""The members a correlation search placed, and those placed onto a few maps that the members near them contradict,
+searched again onto the final merge without them.
 
 A search takes the best place on the union as it was then. A small map of a building of alike shops can fit a
 place half a turn away over its whole area (a generated mall not among the benchmarks: map_00, 69 m2, agreement
@@ -57,8 +58,8 @@ def search_placed_again(grower, group) -> List[int]:
 
 def search_doubted_again(grower, group) -> List[int]:
     """Search the members of the final merge `group` that joined a few maps and that the members near them
-    contradict (in_doubt) onto the union of the others, as search_placed_again does. Returns the members moved or
-    taken out."""
+    contradict (in_doubt) onto the union of the others, as search_placed_again does, but those it places elsewhere
+    leave instead of moving there. Returns the members taken out."""
     started = time.perf_counter()
     todo = in_doubt(grower, group)
     log.debug('members placed onto a few maps checked on the final merge: %s in doubt, %.2f s', todo,
