@@ -32,7 +32,7 @@ from .settings import EstimationSettings
 from .split import split
 from .eviction import MIN_AGREEING, contradicted_members, judge_members, places
 from .stronger import FEW_MEMBERS, PairEvidence, stronger_elsewhere
-from .tracking import MAX_PASSES, least_agreeing, recheck
+from .tracking import MAX_PASSES, Check, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .verify import Placement, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
@@ -462,15 +462,7 @@ class Grower:
         for _ in range(MAX_PASSES):
             if not todo:
                 return
-            placed, footprints = dict(group.members), dict(group.union.footprints)
-            checks = list(self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res,
-                                                          self.s, refine=False,
-                                                          failing='the merge contradicts the placement a search '
-                                                                  'found'), todo))
-            # not for precision alone: the members near it can be too few to show the wall direction that made the
-            # search's placement precise on the whole union (orientation.angle_bound; demo_late_group's robot_5:
-            # 0.11 m there, 0.28-0.30 m here, left out for good on static maps); a slide shows as walls that disagree
-            failed = [c for c in checks if c.transform is None and not c.imprecise]
+            failed = self.contradicted(group, todo, 'the merge contradicts the placement a search found')
             if not failed:
                 return
             worst = least_agreeing(failed)
@@ -481,6 +473,18 @@ class Grower:
                                      (self.grids[worst.k], group.union.known_pixels,
                                       frozenset(self.names[m] for m in group.members)))
             todo = [c.k for c in failed if c is not worst]
+
+    def contradicted(self, group: Group, todo: Sequence[int], failing: str = 'the merge contradicts it') -> List[Check]:
+        """The checks of the members `todo` of `group` that the other members near them contradict as they are
+        placed: tracking's check without its refinement, failing (its reason starting with `failing`) for more than
+        precision alone. Not for precision alone: the members near a map can be too few to show the wall direction
+        that made its placement precise on the whole union (orientation.angle_bound; demo_late_group's robot_5,
+        placed by a search: 0.11 m there, 0.28-0.30 m here, left out for good on static maps); a slide shows as
+        walls that disagree."""
+        placed, footprints = dict(group.members), dict(group.union.footprints)
+        checks = self.pool.map(lambda k: recheck(k, self.grids, self.prepared, placed, footprints, self.res, self.s,
+                                                 refine=False, failing=failing), todo)
+        return [c for c in checks if c.transform is None and not c.imprecise]
 
     def evict_contradicted(self, group: Group, groups: List[Group], unplaced: List[int],
                            make_room: bool = False) -> bool:

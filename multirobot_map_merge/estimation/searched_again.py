@@ -37,7 +37,6 @@ from typing import List
 from .. import transforms as tf
 from .eviction import MIN_AGREEING, judge_members
 from .pair import AMBIGUOUS
-from .tracking import recheck
 from .union import footprint
 from .verify import distinct
 from .workers import MatchCall
@@ -70,15 +69,11 @@ def search_doubted_again(grower, group) -> List[int]:
 
 def in_doubt(grower, group) -> List[int]:
     """The members of `group` that joined a group of a few maps by their own match (grower.placed_onto_few; not the
-    seed, the reference, nor one a search placed) that the members near them contradict as they are placed: tracking's
-    check without its refinement, failing for more than precision alone (the members near a map can be too few to
-    show the wall direction that made it precise, as Grower.confirm_searches notes)."""
+    seed, the reference, nor one a search placed) that the members near them contradict as they are placed
+    (Grower.contradicted)."""
     todo = sorted(k for k in group.members if k in grower.placed_onto_few and k not in grower.searched
                   and k not in (group.seed, grower.reference))
-    placed, footprints = dict(group.members), dict(group.union.footprints)
-    checks = list(grower.pool.map(lambda k: recheck(k, grower.grids, grower.prepared, placed, footprints, grower.res,
-                                                    grower.s, refine=False), todo))
-    return [c.k for c in checks if c.transform is None and not c.imprecise]
+    return [c.k for c in grower.contradicted(group, todo)]
 
 
 def _search_again(grower, group, todo: List[int], what: str, may_move: bool = True) -> List[int]:
