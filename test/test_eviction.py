@@ -1,5 +1,7 @@
 """eviction.py: a member of the merge that the maps left out contradict, while they agree with the other members
 (a map broken by a SLAM failure, placed by one of its parts), is singled out; one map's word is not enough."""
+from typing import Optional
+
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
@@ -140,18 +142,27 @@ class _Loop:
         return [f(*a) for a in zip(*its)]
 
 
-def _two_groups(b_transform: np.ndarray):
+def _two_groups(b_transform: np.ndarray, broken_joined_by: Optional[int] = None):
     """Group A: the broken map 0 with maps 1 and 2; group B: three maps of the same hall that saw the floor where
-    map 0's turned part put a wall, placed by `b_transform` (metric: B's frame -> A's)."""
+    map 0's turned part put a wall, placed by `b_transform` (metric: B's frame -> A's). Map 0 seeds A, or with
+    `broken_joined_by` it joined A (seeded by map 1) by a match with that support."""
     from multirobot_map_merge.estimation.growth import Grower
     world = building()
     grids, prepared, _, _, _ = scene()
     grids.append(seen(world, 80, 260))
     prepared.append(prepare(grids[-1], RES, None))
     grower = Grower(grids, prepared, RES, EstimationSettings(), _Loop(), None, None)
-    a, b = grower.group(0), grower.group(3)
-    for k in (1, 2):
-        a.union.add(k, grids[k], prepared[k], np.eye(3))
+    if broken_joined_by is None:
+        a, b = grower.group(0), grower.group(3)
+        for k in (1, 2):
+            a.union.add(k, grids[k], prepared[k], np.eye(3))
+    else:
+        a, b = grower.group(1), grower.group(3)
+        for k in (0, 2):
+            a.union.add(k, grids[k], prepared[k], np.eye(3))
+        a.links[0] = PairMatch(0, 1, accepted=True, best=Placement(np.eye(3), support=broken_joined_by,
+                                                                   overlap_m2=60.0, agreement=1.0))
+        a.links[0].transform_m = np.eye(3)
     for k in (4, 5):
         b.union.add(k, grids[k], prepared[k], np.eye(3))
     m = PairMatch(3, 0, reason='agreement 0.85 < 0.91',
@@ -166,6 +177,18 @@ def test_a_broken_member_that_keeps_two_groups_apart_leaves_its_group():
     grower, a, b, m = _two_groups(np.eye(3))
     assert grower.evict_at_join(b, a, m)
     assert sorted(a.members) == [1, 2] and a.seed in (1, 2) and 0 in grower.evicted and sorted(b.members) == [3, 4, 5]
+
+
+def test_a_member_joined_by_more_walls_than_the_place_where_the_groups_meet_stays():
+    """The place where the two unions meet (support 800) singles out map 0 as above; joined to its group by a match
+    of 300 agreeing walls it leaves, by one of 3000 it stays: the place is then the weaker evidence (held-out
+    maze36_u in reverse order: a map met a group at an alias, 471 walls, and took out a right member joined by 3473)."""
+    grower, a, b, m = _two_groups(np.eye(3), broken_joined_by=300)
+    assert grower.evict_at_join(b, a, m)
+    assert 0 in grower.evicted and 0 not in a.members
+    grower, a, b, m = _two_groups(np.eye(3), broken_joined_by=3000)
+    assert not grower.evict_at_join(b, a, m)
+    assert sorted(a.members) == [0, 1, 2] and not grower.evicted
 
 
 def test_no_member_leaves_where_the_refused_match_placed_the_other_group_at_an_alias():
