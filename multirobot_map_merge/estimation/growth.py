@@ -396,9 +396,8 @@ class Grower:
         agreed 0.994-1.000, and every such placement of the dev set 1.000."""
         if not m.searched or m.best.agreement >= WEAK_AGREEMENT or self.shares_enough(m.i, m.best.overlap_m2):
             return False
-        pk = self.prepared[m.i]
-        why = (f'waits: a search placed it on {m.best.overlap_m2 / (pk.known_pixels * pk.resolution ** 2):.2f} of its '
-               f'area, agreeing {m.best.agreement:.3f} < {WEAK_AGREEMENT:.2f}')
+        why = (f'waits: a search placed it on {self.share_of(m.i, m.best.overlap_m2):.2f} of its area, agreeing '
+               f'{m.best.agreement:.3f} < {WEAK_AGREEMENT:.2f}')
         log.debug('grid %d onto group %d %s', m.i, m.j, why)
         self.refused[m.i] = dataclasses.replace(m, accepted=False, reason=why)
         return True
@@ -715,10 +714,14 @@ class Grower:
         c = verify(part, union, tf.inverse(union.px_to_map) @ to_union @ part.px_to_map, self.s)
         return c if plausible(c, self.s) and not refusal(c, part, union, self.s, onto_union=True) else None
 
+    def share_of(self, k: int, overlap_m2: float) -> float:
+        """The share of grid k's known area that `overlap_m2` is."""
+        pk = self.prepared[k]
+        return overlap_m2 / (pk.known_pixels * pk.resolution ** 2)
+
     def shares_enough(self, k: int, overlap_m2: float) -> bool:
         """Whether a placement of grid k sharing `overlap_m2` with the merge shares LEFT_OUT_SHARE of its known area."""
-        pk = self.prepared[k]
-        return overlap_m2 >= LEFT_OUT_SHARE * pk.known_pixels * pk.resolution ** 2
+        return self.share_of(k, overlap_m2) >= LEFT_OUT_SHARE
 
     def _left_out_todo(self, group: Group) -> List[int]:
         """The grids search_left_out searches onto the merge `group`: see there."""
