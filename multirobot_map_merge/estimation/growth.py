@@ -34,7 +34,7 @@ from .eviction import MIN_AGREEING, contradicted_members, judge_members, places
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
-from .verify import Placement, overlap_found, partly_agreeing, plausible, refusal, verify
+from .verify import IMPRECISE, Placement, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
@@ -183,6 +183,9 @@ class Grower:
         self.left_out_boxes: Dict[int, Optional[Box]] = {}
         self.left_out_accepted: set = set()          # those it placed by the rules of a pair, short of joining
         self.left_out_matches: Dict[int, PairMatch] = {}   # and how
+        # the places of those it placed by every rule of a pair but precision (side_groups.py: where the union of
+        # their group may be placed, judged there by the rules, precision included, with all its walls)
+        self.left_out_imprecise: Dict[int, PairMatch] = {}
         self.left_out_joined: Dict[int, tuple] = {}   # those that joined: (members agreeing, support) then
         self.left_out_members: frozenset = frozenset()
         self.left_out_evicted: set = set()
@@ -833,6 +836,8 @@ class Grower:
                     self.left_out_matches[m.i] = m
                     continue
                 self.left_out_accepted.discard(m.i)
+                if m.reason.startswith(IMPRECISE):
+                    self.left_out_imprecise[m.i] = m
                 if m.best is not None:
                     # where the merge refused it, as the growth's refusals (evict_contradicted's votes); not a
                     # placement that passed the rules but shares too little (a broken map placed by one part: the
