@@ -384,8 +384,7 @@ class Grower:
                                  compute=len(members) <= FEW_MEMBERS)
         if why is None:
             return False
-        log.debug('grid %d onto group %d %s', m.i, m.j, why)
-        self.refused[m.i] = dataclasses.replace(m, accepted=False, reason=why)
+        self._wait(m, why)
         return True
 
     def _searched_onto_little(self, m: PairMatch) -> bool:
@@ -399,11 +398,14 @@ class Grower:
         agreed 0.994-1.000, and every such placement of the dev set 1.000."""
         if not m.searched or m.best.agreement >= WEAK_AGREEMENT or self.shares_enough(m.i, m.best.overlap_m2):
             return False
-        why = (f'waits: a search placed it on {self.share_of(m.i, m.best.overlap_m2):.2f} of its area, agreeing '
-               f'{m.best.agreement:.3f} < {WEAK_AGREEMENT:.2f}')
+        self._wait(m, f'waits: a search placed it on {self.share_of(m.i, m.best.overlap_m2):.2f} of its area, '
+                      f'agreeing {m.best.agreement:.3f} < {WEAK_AGREEMENT:.2f}')
+        return True
+
+    def _wait(self, m: PairMatch, why: str) -> None:
+        """The accepted match m counts as refused for `why` (not as evidence that the grid contradicts the group)."""
         log.debug('grid %d onto group %d %s', m.i, m.j, why)
         self.refused[m.i] = dataclasses.replace(m, accepted=False, reason=why)
-        return True
 
     def _forget_search(self, k: int, group: Group) -> None:
         """Grid k is placed in the group: a search of it against the group that memory keeps (made before it was
