@@ -5,7 +5,8 @@ from typing import Optional
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation.eviction import contradicted_members, judge_members
+from multirobot_map_merge.estimation import eviction
+from multirobot_map_merge.estimation.eviction import ONE_WITNESS_PRECISION, contradicted_members, judge_members
 from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.pair import PairMatch, match_pair
 from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -210,7 +211,7 @@ def _merge_of(grids, members):
     return grower, group
 
 
-def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for_them():
+def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for_them(monkeypatch):
     """search_left_out: a map left out that the merge's members agree with over most of its area joins; the broken
     map (a wall across the floor the members saw free) does not, nor a right map that shares less than half its area
     with the merge (the merge cannot vouch for the rest)."""
@@ -235,16 +236,26 @@ def test_maps_left_out_are_searched_onto_the_merge_and_join_where_it_vouches_for
     m = match_pair(5, 1, grower.prepared[5], group.union.prepared(), grower.s, onto_union=True, descriptors=False)
     assert m.accepted and np.allclose(m.transform_m, np.eye(3), atol=0.05)
     assert grower.search_left_out(group) == 0
-    # a map that only one member overlaps has only that member's word for its place: it waits
+    # a map that only one member overlaps has only that member's word for its place: it waits, unless its
+    # placement is precise (eviction.vouched_for)
     grids += [seen(world, 200, 300), seen(world, 150, 300), seen(world, 0, 100)]
     grower, group = _merge_of(grids, [1, 6, 7])
     m = match_pair(8, 1, grower.prepared[8], group.union.prepared(), grower.s, onto_union=True, descriptors=False)
     assert m.accepted and np.allclose(m.transform_m, np.eye(3), atol=0.05)
+    assert m.best.corner_error_m <= ONE_WITNESS_PRECISION * grower.s.max_corner_error_m
+    monkeypatch.setattr(eviction, 'ONE_WITNESS_PRECISION', 0.0)   # no placement precise enough for one witness
     found, grower.found = grower.found, {8: grower.found[8]}   # only map 8 searched
     assert grower.search_left_out(group) == 0 and 8 not in group.members
     # once map 4 has joined (it overlaps map 8 too), two members vouch for it
     grower.found[4] = found[4]
     assert grower.search_left_out(group) == 2 and 4 in group.members and 8 in group.members
+    # precise enough, one member's word places it
+    monkeypatch.undo()
+    grower, group = _merge_of(grids, [1, 6, 7])
+    grower.found = {8: grower.found[8]}
+    assert grower.search_left_out(group) == 1 and 8 in group.members
+    rot, shift = tf.difference(group.members[8], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+    assert rot < 0.01 and shift < 0.1
 
 
 def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined():

@@ -3,8 +3,9 @@ took it apart, join together where the end's search placed one of them, when sev
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation import side_groups
+from multirobot_map_merge.estimation import eviction, side_groups
 from multirobot_map_merge.estimation.side_groups import remember, search_side_groups
+from multirobot_map_merge.estimation.union import footprint
 from test_eviction import _merge_of, seen, stubbed_building
 
 CORNERS = np.array([[0.0, 0.0], [15.0, 10.0]])
@@ -85,3 +86,30 @@ def test_a_side_group_is_tried_where_a_member_was_placed_by_every_rule_but_preci
     grower.left_out_imprecise[3] = m
     assert search_side_groups(grower, group) == 2
     assert sorted(group.members) == [0, 1, 2, 3, 4]
+
+
+def test_a_side_group_whose_maps_each_agree_with_one_member_of_the_merge_joins_where_it_is_precise(monkeypatch):
+    """Two maps east of the merge, where only map 0 of the merge reaches: each agrees with that one member and
+    contradicts none. One member's word counts where the union's placement is precise (eviction.vouched_for: the
+    held-out maze36_v in reverse order, maps 04 and 19 met the merge by map_26 alone, 0.04 m uncertain at the far
+    corners; maze36_u's group of four, by one member each, 0.24 m, would have joined 4.7 cells off). Here the union's
+    placement is 0.10 m uncertain: out where one witness needs 0.075 m, in where 0.125 m will do."""
+    world = stubbed_building()
+    grids = [seen(world, 0, 200), seen(world, 0, 120), seen(world, 20, 150), seen(world, 140, 280),
+             seen(world, 150, 300)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    remember(grower.side_groups, {3: np.eye(3), 4: np.eye(3)})
+    assert grower.search_left_out(group) == 0   # each shares less than half its area with the merge
+    for k in (3, 4):
+        agreeing, contradicting = eviction.judge_members(
+            k, np.eye(3), group.members, group.union.footprints, footprint(grids[k], np.eye(3)), grower.prepared,
+            grower.s)
+        assert agreeing == [0] and contradicting == []
+    monkeypatch.setattr(eviction, 'ONE_WITNESS_PRECISION', 0.3)   # 0.075 m
+    assert search_side_groups(grower, group) == 0
+    monkeypatch.setattr(eviction, 'ONE_WITNESS_PRECISION', 0.5)   # 0.125 m
+    assert search_side_groups(grower, group) == 2
+    assert sorted(group.members) == [0, 1, 2, 3, 4]
+    for k in (3, 4):
+        rot, shift = tf.difference(group.members[k], np.eye(3), CORNERS)
+        assert rot < 0.01 and shift < 0.1

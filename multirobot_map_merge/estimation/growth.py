@@ -30,7 +30,7 @@ from .memory import EstimationMemory
 from .pair import SEARCH_POSTPONED, PairMatch
 from .settings import EstimationSettings
 from .split import split
-from .eviction import MIN_AGREEING, contradicted_members, judge_members, places
+from .eviction import contradicted_members, judge_members, places, vouched_for
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
@@ -765,8 +765,8 @@ class Grower:
         """Search the grids left out of the merge (`group`; not those evicted) whose refused match found where they
         overlap its members (the others the growth searched onto it, _search), whether or not the growth searched them
         since, and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's
-        known area with the merge, agrees with MIN_AGREEING members or more (as pairs) and contradicts
-        none. Returns how many joined. The searches count against the search budget as the growth's do.
+        known area with the merge, agrees with MIN_AGREEING members or more (as pairs; or one, where its placement is
+        precise: eviction.vouched_for) and contradicts none. Returns how many joined. The searches count against the search budget as the growth's do.
 
         The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
         broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
@@ -818,7 +818,7 @@ class Grower:
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
                                                         self.s, verified=self.judged)
-                if len(agreeing) >= MIN_AGREEING and self._outweighs(group, m, agreeing, contradicting):
+                if vouched_for(agreeing, m.best, self.s) and self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
             for m, agreeing, contradicting in joining:
                 for j in contradicting:

@@ -35,7 +35,7 @@ import time
 from typing import List
 
 from .. import transforms as tf
-from .eviction import MIN_AGREEING, judge_members
+from .eviction import judge_members, vouched_for
 from .pair import AMBIGUOUS
 from .union import footprint
 from .verify import distinct
@@ -127,4 +127,4 @@ def _joins_there(grower, group, k: int, m) -> bool:
     agreeing, contradicting = judge_members(k, m.transform_m, others, group.union.footprints,
                                             footprint(grower.grids[k], m.transform_m), grower.prepared, grower.s,
                                             verified=grower.judged)
-    return len(agreeing) >= MIN_AGREEING and not contradicting
+    return vouched_for(agreeing, m.best, grower.s) and not contradicting

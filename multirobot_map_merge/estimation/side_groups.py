@@ -16,8 +16,9 @@ So the members of such a group that are still left out at the end are placed tog
 school36_v's group of 11 joined with its member's place 0.24 m uncertain at the far corners and stayed out at 0.28 m,
 as the maps' order and the draws had it; the union, with all its walls, is judged there with the precision rule
 too). They join there when the union passes
-the rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge and
-contradict none (eviction.judge_members), more than the members the merge contradicts, and a search of the union
+the rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge (or
+with one, where the union's placement is precise: eviction.vouched_for) and contradict none (eviction.judge_members),
+more than the members the merge contradicts, and a search of the union
 finds no place as good elsewhere (pair.find_rival, pair.as_good). A broken map placed by one fitting part meets the
 merge by that part alone; a group meets it by several maps that agree. In hospital36 the seven members of the
 chain meet the merge where the end's search put one of them (seeds 0-2 of the random sampling); without the ICP
@@ -31,15 +32,15 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from .. import transforms as tf
-from .eviction import MIN_AGREEING, judge_members
+from .eviction import judge_members, vouched_for
 from .pair import PairMatch, as_good, find_rival
 from .refine import icp
 from .union import footprint
-from .verify import pair_confidence, same_place
+from .verify import Placement, pair_confidence, same_place
 
 log = logging.getLogger('rosout.' + __name__)
 
-MEETING = 2   # members of a side group that must each agree with MIN_AGREEING members of the merge where it joins
+MEETING = 2   # members of a side group that members of the merge must each vouch for where it joins
 
 
 def remember(side_groups: List[Dict[int, np.ndarray]], members: Dict[int, np.ndarray]) -> None:
@@ -91,7 +92,7 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
         c = grower.passes_onto(part, union, place)
         if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
             continue
-        meeting, contradicted = _meeting(grower, group, them, place)
+        meeting, contradicted = _meeting(grower, group, them, place, c)
         if len(meeting) < MEETING or len(meeting) <= len(contradicted):
             continue
         rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
@@ -109,9 +110,10 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
     return None
 
 
-def _meeting(grower, group, them, to_merge: np.ndarray) -> Tuple[List[int], List[int]]:
-    """(meeting, contradicted): the members of `them` that agree with MIN_AGREEING members of the merge and
-    contradict none at the union's placement `to_merge`, and those that contradict one."""
+def _meeting(grower, group, them, to_merge: np.ndarray, c: Placement) -> Tuple[List[int], List[int]]:
+    """(meeting, contradicted): the members of `them` that members of the merge vouch for (MIN_AGREEING of them, or
+    one where c, the union's placement `to_merge`, is precise: eviction.vouched_for) and that contradict none there,
+    and those that contradict one."""
     meeting, contradicted = [], []
     for k, t in them.members.items():
         placed = to_merge @ t
@@ -120,6 +122,6 @@ def _meeting(grower, group, them, to_merge: np.ndarray) -> Tuple[List[int], List
                                                 verified=grower.judged)
         if contradicting:
             contradicted.append(k)
-        elif len(agreeing) >= MIN_AGREEING:
+        elif vouched_for(agreeing, c, grower.s):
             meeting.append(k)
     return meeting, contradicted
