@@ -784,6 +784,29 @@ def test_opposite_angles_correlated_from_one_turned_image_score_as_if_each_was_t
         assert abs(score_p - score_a) < 1e-3 * abs(score_a) and np.allclose(t_p, t_a) and angle_p == angle_a
 
 
+def test_the_search_finds_the_same_candidates_when_its_dft_skips_the_rows_of_zeros(repo_root, monkeypatch):
+    """Without Intel's IPP (Debian's OpenCV) each turned image's DFT is told that only its first rows hold the image
+    (search.zero_rows_hint: nonzeroRows, 1.3-1.6 times faster there): the search returns the same candidates as
+    without the hint, on a robot's map and a union from a live demo."""
+    import cv2
+    from multirobot_map_merge.estimation import search
+    from multirobot_map_merge.estimation.features import prepare
+    folder = repo_root / 'test' / 'data' / 'demo_early_small_map'
+    robot, union = (prepare(load_map(str(folder / f'{n}.yaml')), 0.05, None) for n in ('robot_1', 'union'))
+    used = cv2.ipp.useIPP()
+    cv2.ipp.setUseIPP(False)
+    try:
+        assert search.zero_rows_hint(100) == 100
+        hinted = search.correlate_candidates(robot, union, 4, 3.0, keep=8)
+        monkeypatch.setattr(search, 'zero_rows_hint', lambda rows: 0)
+        plain = search.correlate_candidates(robot, union, 4, 3.0, keep=8)
+    finally:
+        cv2.ipp.setUseIPP(used)
+    assert len(hinted) == 8 and len(plain) == 8
+    for a, b in zip(hinted, plain):
+        assert np.array_equal(a, b)
+
+
 def test_the_search_counts_a_place_seen_at_neighbouring_angles_once():
     """search.Places: a peak at a neighbouring angle a pixel away is the same place, which keeps its best peak; a new
     place enters the best `keep` by its score and pushes the last one out."""
