@@ -955,6 +955,10 @@ class Grower:
             self.postponed += 1
         return m
 
+    def match_groups_now(self, small: Group, big: Group) -> PairMatch:
+        """The match of the union of `small` onto that of `big`, made now as merge_groups makes it (not kept)."""
+        return self.matcher.match_here(self._group_call(small, big, self._spent()))
+
     def _spent(self) -> bool:
         return self.budget.spent(self.search_seconds, self.s.search_budget_s)
 
