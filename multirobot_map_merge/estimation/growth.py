@@ -766,7 +766,8 @@ class Grower:
         overlap its members (the others the growth searched onto it, _search), whether or not the growth searched them
         since, and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's
         known area with the merge, agrees with MIN_AGREEING members or more (as pairs; or one, where its placement is
-        precise: eviction.vouched_for) and contradicts none. Returns how many joined. The searches count against the search budget as the growth's do.
+        precise: eviction.vouched_for) and contradicts none. Returns how many joined. The searches count against the
+        search budget as the growth's do.
 
         The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
         broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
@@ -956,8 +957,12 @@ class Grower:
         return m
 
     def match_groups_now(self, small: Group, big: Group) -> PairMatch:
-        """The match of the union of `small` onto that of `big`, made now as merge_groups makes it (not kept)."""
-        return self.matcher.match_here(self._group_call(small, big, self._spent()))
+        """The match of the union of `small` onto that of `big`, made now as merge_groups makes it (not kept); it
+        counts against the search budget as merge_groups' do."""
+        started = time.perf_counter()
+        m = self.matcher.match_here(self._group_call(small, big, self._spent()))
+        self.search_seconds += time.perf_counter() - started
+        return m
 
     def _spent(self) -> bool:
         return self.budget.spent(self.search_seconds, self.s.search_budget_s)

@@ -15,17 +15,16 @@ So the members of such a group that are still left out at the end are placed tog
 (growth.search_left_out: it passed the rules of a pair, short of the share, or every rule but precision: the held-out
 school36_v's group of 11 joined with its member's place 0.24 m uncertain at the far corners and stayed out at 0.28 m,
 as the maps' order and the draws had it; the union, with all its walls, is judged there with the precision rule
-too), or where a match of the union onto the merge by the growth's rules places it (Grower.match_groups_now: the
-growth took the group apart while the merge was another, and with a broken member still in it: the held-out
-courtyard36_v in the given order, maps 01 and 12, whose end searches placed neither). They join there when the
-union passes
-the rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge (or
-with one, where the union's placement is precise: eviction.vouched_for) and contradict none (eviction.judge_members),
-more than the members the merge contradicts, and a search of the union
-finds no place as good elsewhere (pair.find_rival, pair.as_good). A broken map placed by one fitting part meets the
-merge by that part alone; a group meets it by several maps that agree. In hospital36 the seven members of the
-chain meet the merge where the end's search put one of them (seeds 0-2 of the random sampling); without the ICP
-refinement of the union there, one of them (map_25) contradicted a member by their thin common walls (19 m2).
+too), or else where a match of the union onto the merge by the growth's rules places it (Grower.match_groups_now:
+the growth took the group apart while the merge was another, a broken member still in it; the held-out courtyard36_v
+in the given order, maps 01 and 12, whose end searches placed neither). They join there when the union passes the
+rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge (or with
+one, where the union's placement is precise: eviction.vouched_for) and contradict none (eviction.judge_members), more
+than the members the merge contradicts, and a search of the union finds no place as good elsewhere (pair.find_rival,
+pair.as_good). A broken map placed by one fitting part meets the merge by that part alone; a group meets it by
+several maps that agree. In hospital36 the seven members of the chain meet the merge where the end's search put one
+of them (seeds 0-2 of the random sampling); without the ICP refinement of the union there, one of them (map_25)
+contradicted a member by their thin common walls (19 m2).
 """
 from __future__ import annotations
 
@@ -76,8 +75,8 @@ def search_side_groups(grower, group) -> int:
 
 
 def _placed(grower, group, them) -> Optional[PairMatch]:
-    """The match that places the union of `them` onto the merge `group`, if one does by the rules of the module, at
-    the places of its members' searches or at the place of a match of the two unions."""
+    """The match that places the union of `them` onto the merge `group`, if one does by the rules of the module: at
+    the places of its members' searches, then at the place of a match of the two unions."""
     part, union, s = them.union.prepared(), group.union.prepared(), grower.s
     rng = np.random.default_rng(s.seed + them.seed)
     places: List[np.ndarray] = []
@@ -91,36 +90,45 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
                      rng)
             if not any(same_place(px, p, part) for p in places):
                 places.append(px)
-    searched = len(places)   # places[:searched] are the members' searches'
-    # and where a match of the two unions places it, by the growth's rules (merge_groups): the growth took the group
-    # apart before the merge was what it is now
+    for px in places:
+        judged = _judged_at(grower, group, them, px, 'member searches')
+        if judged is not None:
+            return judged or None
+    # the growth took the group apart while the merge was another (a broken member still in it): where a match of the
+    # two unions by the growth's rules (merge_groups) places it now
     matched = grower.match_groups_now(them, group)
-    if matched.accepted:
-        px = tf.inverse(union.px_to_map) @ matched.transform_m @ part.px_to_map
-        if not any(same_place(px, p, part) for p in places):
-            places.append(px)
-    for n, px in enumerate(places):
-        place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
-        c = grower.passes_onto(part, union, place)
-        if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
-            continue
-        meeting, contradicted = _meeting(grower, group, them, place, c)
-        if len(meeting) < MEETING or len(meeting) <= len(contradicted):
-            continue
-        rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
-        log.debug('side group %s %s: the union placed where %s put it (agreement %.2f, support %d), '
-                  'members %s each agreeing with members of the merge%s', sorted(them.members),
-                  'stays out' if rival is not None else 'joins the merge',
-                  'member searches' if n < searched else 'a match of the two unions', c.agreement, c.support, meeting,
-                  f'; a place as good elsewhere (agreement {rival.agreement:.2f}, support {rival.support})'
-                  if rival is not None else '')
-        if rival is not None:
-            return None
-        m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
-        m.confidence = pair_confidence(m.inliers, m.matches)
-        m.transform_m = place
-        return m
-    return None
+    if not matched.accepted:
+        return None
+    px = tf.inverse(union.px_to_map) @ matched.transform_m @ part.px_to_map
+    if any(same_place(px, p, part) for p in places):
+        return None   # judged there already
+    return _judged_at(grower, group, them, px, 'a match of the two unions') or None
+
+
+def _judged_at(grower, group, them, px: np.ndarray, where: str):
+    """The union of `them` judged at placement px (pixels of the union -> pixels of the merge) by the rules of the
+    module: the match that places it there if it joins; False if it stays out (a place as good elsewhere); None if
+    the place fails the rules (other places may be tried)."""
+    part, union, s = them.union.prepared(), group.union.prepared(), grower.s
+    place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
+    c = grower.passes_onto(part, union, place)
+    if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
+        return None
+    meeting, contradicted = _meeting(grower, group, them, place, c)
+    if len(meeting) < MEETING or len(meeting) <= len(contradicted):
+        return None
+    rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
+    log.debug('side group %s %s: the union placed where %s put it (agreement %.2f, support %d), members %s each '
+              'agreeing with members of the merge%s', sorted(them.members),
+              'stays out' if rival is not None else 'joins the merge', where, c.agreement, c.support, meeting,
+              f'; a place as good elsewhere (agreement {rival.agreement:.2f}, support {rival.support})'
+              if rival is not None else '')
+    if rival is not None:
+        return False
+    m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
+    m.confidence = pair_confidence(m.inliers, m.matches)
+    m.transform_m = place
+    return m
 
 
 def _meeting(grower, group, them, to_merge: np.ndarray, c: Placement) -> Tuple[List[int], List[int]]:
