@@ -948,19 +948,20 @@ class Grower:
         m = self._group_match_kept(small, big)
         if m is None:
             spent = self._spent()
-            started = time.perf_counter()
-            m = self.matcher.match_here(self._group_call(small, big, spent))
-            self.search_seconds += time.perf_counter() - started
+            m = self._group_match(small, big, spent)
             self._keep_group_match(small, big, spent, m)
         if m.reason == SEARCH_POSTPONED:
             self.postponed += 1
         return m
 
     def match_groups_now(self, small: Group, big: Group) -> PairMatch:
-        """The match of the union of `small` onto that of `big`, made now as merge_groups makes it (not kept); it
-        counts against the search budget as merge_groups' do."""
+        """The match of the union of `small` onto that of `big`, made now as merge_groups makes it (not kept)."""
+        return self._group_match(small, big, self._spent())
+
+    def _group_match(self, small: Group, big: Group, spent: bool) -> PairMatch:
+        """The match of two groups' unions, made here; it counts against the search budget."""
         started = time.perf_counter()
-        m = self.matcher.match_here(self._group_call(small, big, self._spent()))
+        m = self.matcher.match_here(self._group_call(small, big, spent))
         self.search_seconds += time.perf_counter() - started
         return m
 

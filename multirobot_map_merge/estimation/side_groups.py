@@ -29,7 +29,7 @@ contradicted a member by their thin common walls (19 m2).
 from __future__ import annotations
 
 import logging
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Iterator, List, Optional, Tuple
 
 import numpy as np
 
@@ -78,6 +78,35 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
     """The match that places the union of `them` onto the merge `group`, if one does by the rules of the module: at
     the places of its members' searches, then at the place of a match of the two unions."""
     part, union, s = them.union.prepared(), group.union.prepared(), grower.s
+    for px, where in _places(grower, group, them):
+        place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
+        c = grower.passes_onto(part, union, place)
+        if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
+            continue
+        meeting, contradicted = _meeting(grower, group, them, place, c)
+        if len(meeting) < MEETING or len(meeting) <= len(contradicted):
+            continue
+        rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
+        log.debug('side group %s %s: the union placed where %s put it (agreement %.2f, support %d), members %s each '
+                  'agreeing with members of the merge%s', sorted(them.members),
+                  'stays out' if rival is not None else 'joins the merge', where, c.agreement, c.support, meeting,
+                  f'; a place as good elsewhere (agreement {rival.agreement:.2f}, support {rival.support})'
+                  if rival is not None else '')
+        if rival is not None:
+            return None
+        m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
+        m.confidence = pair_confidence(m.inliers, m.matches)
+        m.transform_m = place
+        return m
+    return None
+
+
+def _places(grower, group, them) -> Iterator[Tuple[np.ndarray, str]]:
+    """The distinct places (pixels of the union of `them` -> pixels of the merge `group`) to judge the union at, and
+    where each comes from: its members' searches, then, made only when those are judged in vain, a match of the two
+    unions by the growth's rules (merge_groups: the growth took the group apart while the merge was another, a broken
+    member still in it)."""
+    part, union, s = them.union.prepared(), group.union.prepared(), grower.s
     rng = np.random.default_rng(s.seed + them.seed)
     places: List[np.ndarray] = []
     for k, t in them.members.items():
@@ -91,44 +120,12 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
             if not any(same_place(px, p, part) for p in places):
                 places.append(px)
     for px in places:
-        judged = _judged_at(grower, group, them, px, 'member searches')
-        if judged is not None:
-            return judged or None
-    # the growth took the group apart while the merge was another (a broken member still in it): where a match of the
-    # two unions by the growth's rules (merge_groups) places it now
+        yield px, 'member searches'
     matched = grower.match_groups_now(them, group)
-    if not matched.accepted:
-        return None
-    px = tf.inverse(union.px_to_map) @ matched.transform_m @ part.px_to_map
-    if any(same_place(px, p, part) for p in places):
-        return None   # judged there already
-    return _judged_at(grower, group, them, px, 'a match of the two unions') or None
-
-
-def _judged_at(grower, group, them, px: np.ndarray, where: str):
-    """The union of `them` judged at placement px (pixels of the union -> pixels of the merge) by the rules of the
-    module: the match that places it there if it joins; False if it stays out (a place as good elsewhere); None if
-    the place fails the rules (other places may be tried)."""
-    part, union, s = them.union.prepared(), group.union.prepared(), grower.s
-    place = union.px_to_map @ px @ tf.inverse(part.px_to_map)
-    c = grower.passes_onto(part, union, place)
-    if c is None or pair_confidence(c.support, c.support + c.conflicts) < s.confidence:
-        return None
-    meeting, contradicted = _meeting(grower, group, them, place, c)
-    if len(meeting) < MEETING or len(meeting) <= len(contradicted):
-        return None
-    rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
-    log.debug('side group %s %s: the union placed where %s put it (agreement %.2f, support %d), members %s each '
-              'agreeing with members of the merge%s', sorted(them.members),
-              'stays out' if rival is not None else 'joins the merge', where, c.agreement, c.support, meeting,
-              f'; a place as good elsewhere (agreement {rival.agreement:.2f}, support {rival.support})'
-              if rival is not None else '')
-    if rival is not None:
-        return False
-    m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
-    m.confidence = pair_confidence(m.inliers, m.matches)
-    m.transform_m = place
-    return m
+    if matched.accepted:
+        px = tf.inverse(union.px_to_map) @ matched.transform_m @ part.px_to_map
+        if not any(same_place(px, p, part) for p in places):
+            yield px, 'a match of the two unions'
 
 
 def _meeting(grower, group, them, to_merge: np.ndarray, c: Placement) -> Tuple[List[int], List[int]]:
