@@ -18,7 +18,9 @@ With --kinds it also prints the CPU of each kind of match in a serial estimation
 the growth's method that asked for it): how many, how many accepted, their CPU and its share of the estimation's (a
 grid's keypoints are detected in the first match that needs them); the CPU of the accepted and the refused matches,
 and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted,
-or the reason of the refusal) and whether a correlation search ran.
+or the reason of the refusal) and whether a correlation search ran; and the matches made again: a grid onto a grid
+or a group (by its seed) that it was matched onto before in the estimation in the same way (by descriptors alone, or
+with a correlation search), the group's union grown since.
 With --cores it prints only the CPU of a serial estimation and of one with its defaults, neither under the profiler:
 the estimating process's and its worker processes', their ratio to the serial CPU (what the processes add: the grids
 written and read, the workers' own caches, the threads of the estimating process), and the cores the estimation kept
@@ -101,6 +103,8 @@ if kinds:
     # (kind, verdict, searched) -> matches, CPU s, of it the correlation search's
     verdicts = collections.defaultdict(lambda: [0, 0.0, 0.0])
     searching = [0, 0.0]   # correlation searches of the match being made, their CPU s
+    seen = set()   # (grid, grid or group seed, searched) of the matches so far
+    again = collections.defaultdict(lambda: [0, 0, 0.0])   # searched -> matches made again, accepted, CPU s
     correlate = pair.correlate_candidates
     def correlate_timed(*args, **options):
         started = time.process_time()
@@ -129,6 +133,13 @@ if kinds:
         row[0] += 1
         row[1] += took
         row[2] += searching[1]
+        made = (i, j, searching[0] > 0)
+        if made in seen:   # the same work again: the grid onto the same grid, or the same group's union grown since
+            row = again[searching[0] > 0]
+            row[0] += 1
+            row[1] += m.accepted
+            row[2] += took
+        seen.add(made)
         return m
     workers.match_pair = timed
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
@@ -158,6 +169,9 @@ if kinds:
         search_s = sum(v[2] for v, _ in rows)   # none where no search ran
         print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a '
               f'search ran ({{search_s:.2f}} s the search itself)')
+    for searched, (n, accepted, seconds) in sorted(again.items()):
+        print(f'  made again onto the same grid or group, {{"searched" if searched else "descriptors only":16s}} '
+              f'{{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU {{100 * seconds / cpu:5.1f}} %')
     print('  by verdict (the 12 costliest; searched: a correlation search over all angles ran, its CPU in brackets):')
     for (kind, verdict, searched), (n, seconds, search) in sorted(verdicts.items(), key=lambda kv: -kv[1][1])[:12]:
         what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
