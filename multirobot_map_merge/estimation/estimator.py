@@ -445,7 +445,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 # beside them the maps left out can share enough now; and the maps of a group that one of them was
                 # in overlap them (the held-out school36_v: three maps whose group the side group's maps had been
                 # part of stayed out, each placed right by a search onto the final merge at agreement 1.00)
-                grower.search_left_out(chosen, also=group_mates(groups, chosen))
+                grower.search_left_out(chosen, also=group_mates(groups, chosen), refused=True)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)
