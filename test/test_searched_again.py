@@ -84,6 +84,26 @@ def test_a_member_placed_onto_a_few_maps_that_the_members_near_it_contradict_is_
     assert np.allclose(group.members[3], before)
 
 
+def test_a_member_in_doubt_that_leaves_counts_as_evicted_and_the_maps_it_saw_are_searched_again():
+    """A member search_doubted_again takes out counts as evicted: a map left out whose last search onto the merge
+    found a place over it is searched again, and the member is not (held-out mall36_v, maps in reverse order: map_08
+    at an alias made map_01's true place look ambiguous until it left)."""
+    from multirobot_map_merge.estimation.union import footprint
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 40, 160),
+             seen(world, 60, 200)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    group.union.add(3, grids[3], grower.prepared[3], tf.rigid(1.5, 0.4, 0.03))   # joined a few maps, off
+    grower.placed_onto_few.add(3)
+    # map 4's last search at the end found a place over member 3, and was refused
+    grower.left_out_boxes[4] = footprint(grids[3], group.members[3])
+    grower.left_out_members, grower.left_out_evicted = frozenset(group.members), set(grower.evicted)
+    grower.left_out_footprints = dict(group.union.footprints)
+    assert grower._left_out_todo(group) == []
+    assert search_doubted_again(grower, group) == [3] and 3 in grower.evicted
+    assert grower._left_out_todo(group) == [4]
+
+
 def test_a_member_that_joined_a_larger_union_is_not_checked_again():
     """Placed as wrong, but by a match onto more than a few maps (judged on all their walls): not in doubt."""
     grower, group = _merge(tf.rigid(1.5, 0.4, 0.03), searched=False)

@@ -449,8 +449,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)
-            if settings.search_left_out:
-                search_doubted_again(grower, chosen)
+            if settings.search_left_out and search_doubted_again(grower, chosen):
+                # a member at an alias can keep out the maps whose true place it contradicts or makes ambiguous
+                grower.search_left_out(chosen)
         elif tracked and chosen is not tracked_group:
             # the merge moves to a group that outgrew the tracked one: its placements, held in its own frame, were
             # never tracked, and are published once confirmed (confirmation.keep_standing)
