@@ -30,6 +30,7 @@ SCREEN_COARSER = 1.5     # the screen's factor / the search's factor (see correl
 SCREEN_MIN_PIXELS = 32   # the screen needs both grids this many pixels across at its factor
 PLACE_PX = 2.0           # peaks at neighbouring angles whose grid centres lie this close (coarse pixels) ...
 PLACE_DEGREES = 3.5      # ... and whose angles differ by this little (a sweep step and a bit) are one place
+PLACE_PEAKS = 4          # peaks of one angle that may each make a place among the best (distinct_places)
 
 
 @dataclass
@@ -310,7 +311,8 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
         order = np.argsort(score[ys, xs])[::-1]
         taken = placed = 0
         for y, x in zip(ys[order], xs[order]):
-            if places is not None and taken >= peaks_per_angle and score[y, x] <= places.floor:
+            if places is not None and taken >= peaks_per_angle \
+                    and (placed >= PLACE_PEAKS or score[y, x] <= places.floor):
                 break   # the rest can make no place among the best either
             # circular correlation: shifts past half the size are negative
             dy = y - shape[0] if y > shape[0] - diag else y
@@ -323,9 +325,9 @@ def _best_peaks(ci: CoarseGrid, against: Tuple[np.ndarray, np.ndarray], shape: T
             if taken < peaks_per_angle:
                 found.append((float(score[y, x]), t, angle))
                 taken += 1
-            if places is not None and placed < peaks_per_angle and places.add(float(score[y, x]), t, angle):
+            if places is not None and placed < PLACE_PEAKS and places.add(float(score[y, x]), t, angle):
                 placed += 1
-            if taken >= peaks_per_angle and (places is None or placed >= peaks_per_angle):
+            if taken >= peaks_per_angle and (places is None or placed >= PLACE_PEAKS):
                 break
         if taken and len(found) >= keep:
             floor = sorted((st[0] for st in found), reverse=True)[keep - 1]
