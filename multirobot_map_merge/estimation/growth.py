@@ -756,9 +756,10 @@ class Grower:
             saw_gone = any(members & gone for members in found) \
                 or (box is None and bool(gone)) \
                 or (box is not False and any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone))
-            joined = refused and not group.members.keys() <= self.left_out_saw.get(k, frozenset())
-            if box is not False and not (changed and k in self.left_out_accepted) and not saw_gone and not joined:
-                # searched at the end already and refused, and no member it saw has left since: the same verdict
+            newcomers = refused and not group.members.keys() <= self.left_out_saw.get(k, frozenset())
+            if box is not False and not (changed and k in self.left_out_accepted) and not saw_gone and not newcomers:
+                # searched at the end already and refused, no member it saw has left since (nor, with `refused`, has
+                # one joined that it did not see): the same verdict
                 continue
             todo.append(k)
         return todo
