@@ -799,7 +799,10 @@ class Grower:
         With `readmit`, it searches the members taken out instead (evict_contradicted), once the maps left out have
         had their rounds: a member one map singled out can be right and that map wrong (the generated radial hall: a
         broken map placed at the hub by one part voted out the right map that had seen the hub); it joins again by
-        the same rules (a broken member taken out in hospital36 seed 1: its search found no place they accept)."""
+        the same rules (a broken member taken out in hospital36 seed 1: its search found no place they accept), but a
+        member taken out, whatever call searches it, is vouched for only by members that did not join by these
+        searches themselves (on partial maps of a generated courtyard, two members taken out came back, one turned by
+        154 degrees, one 7.6 m off, on the word of two maps these searches had just placed, one of them 3.8 m off)."""
         if self._spent():
             return 0
         union = group.union.prepared()
@@ -827,9 +830,7 @@ class Grower:
                 agreeing, contradicting = judge_members(m.i, m.transform_m, group.members, group.union.footprints,
                                                         footprint(self.grids[m.i], m.transform_m), self.prepared,
                                                         self.s, verified=self.judged)
-                # a member taken out is vouched for again only by members that did not join by these searches
-                # themselves: on partial maps of a generated courtyard, two members taken out came back (one turned
-                # by 154 degrees, one 7.6 m off) on the word of two maps these searches had just placed (one 3.8 m off)
+                # a member taken out: vouched for only by members these searches did not place (see above)
                 vouchers = [j for j in agreeing if j not in self.left_out_joined] if m.i in self.evicted else agreeing
                 if vouched_for(vouchers, m.best, self.s) and self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
