@@ -2,12 +2,17 @@
 """Interleaved comparison of the estimation of two revisions (not a test: it prints figures and their ratio).
 
     scripts/env.sh python bench/bench_ab.py [--base REV] [--rounds N] [--threads N] [--maps DIR | --large36 [CACHE]]
+    scripts/env.sh python bench/bench_ab.py [--base REV] [--rounds N] --generated [NAMES]
 
 Runs one estimation per process, alternating the base revision (default HEAD, checked out into a temporary git
 worktree that is removed at the end) and the working tree, for --rounds rounds; prints per side the median and
 lowest wall time, the median CPU time of the estimating process and of it with its worker processes, the maps
 placed, and the ratio of the medians. The maps default to the shared 30-map scenario; --large36 uses the generated
-36-map one (bench_merge.py --large36 makes it).
+36-map one (bench_merge.py --large36 makes it). --generated compares the two on each generated building (NAMES as
+bench_merge.py --generated takes them: none for the thirteen <kind>36, unseen, unseen2 or a comma-separated list;
+made into out/bench on first use), alternating within each building, and prints per building the two medians and
+their ratio, then each side's median and worst over the buildings: the time of one revision on this machine varies
+by up to 1.4 times from day to day, its ratio to a fixed revision far less.
 
 Why interleaved: on this 2-core machine the same code ran 4.9-7.3 s within one hour, CPU time included, so two
 figures taken minutes apart cannot show a change of less than about a tenth; alternating one process each puts
@@ -24,7 +29,8 @@ import tempfile
 from pathlib import Path
 from typing import Dict, List
 
-import machine  # bench/, beside this script
+import bench_merge  # bench/, beside this script
+import machine
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MAPS = REPO.parent / 'shared' / 'data' / 'dev' / 'large30_hospital_section'
@@ -66,6 +72,54 @@ def summary(name: str, runs: List[Dict[str, float]]) -> str:
             f'{" ".join(f"{w:.2f}" for w in walls)} |')
 
 
+def _worktree(base_rev: str, tmp: str) -> Path:
+    base = Path(tmp) / 'base'
+    subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', '-q', str(base), base_rev], check=True)
+    return base
+
+
+def compare_buildings(args: argparse.Namespace) -> int:
+    """--generated: the two sides on each building, alternating within it; one table."""
+    import make_sample_maps   # scripts/, on bench_merge's path
+    names = bench_merge.building_names(args.generated)
+    unknown = [n for n in names if n not in make_sample_maps.GENERATED]
+    if unknown:
+        print(f'bench_ab: unknown generated scenario {unknown[0]}', file=sys.stderr)
+        return 2
+    cache = REPO / 'out' / 'bench'
+    for name in names:
+        bench_merge.ensure_generated(cache, name)
+    medians: Dict[str, Dict[str, float]] = {'base': {}, 'work': {}}
+    rows = []
+    with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
+        base = _worktree(args.base, tmp)
+        try:
+            for name in names:
+                runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
+                for _ in range(args.rounds):
+                    for side, root in (('base', base), ('work', REPO)):
+                        runs[side].append(run_once(root, cache / name, args.threads))
+                for side in runs:
+                    medians[side][name] = statistics.median(r['wall'] for r in runs[side])
+                placed = {side: '/'.join(map(str, sorted({int(r['placed']) for r in runs[side]}))) for side in runs}
+                rows.append(f"| {name} | {medians['base'][name]:.2f} | {medians['work'][name]:.2f} | "
+                            f"{medians['work'][name] / medians['base'][name]:.2f} | {placed['base']} | "
+                            f"{placed['work']} |")
+                print(f'{name}: base {medians["base"][name]:.2f} s, work {medians["work"][name]:.2f} s', flush=True)
+        finally:
+            subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
+    print(f'\none estimation per building and side, {args.threads} threads, {args.rounds} rounds alternating; base = '
+          f'{args.base}, work = working tree; {machine.describe()}\n')
+    print('| building | base median (s) | work median (s) | work / base | base placed | work placed |')
+    print('|---|---|---|---|---|---|')
+    print('\n'.join(rows))
+    over = {side: (statistics.median(medians[side].values()), max(medians[side].values())) for side in medians}
+    print(f"\n- median over the buildings: base {over['base'][0]:.2f} s, work {over['work'][0]:.2f} s "
+          f"({over['work'][0] / over['base'][0]:.2f}); worst: base {over['base'][1]:.2f} s, work "
+          f"{over['work'][1]:.2f} s ({over['work'][1] / over['base'][1]:.2f})")
+    return 0
+
+
 def main(argv: List[str] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--base', default='HEAD', help='revision compared with the working tree (default HEAD)')
@@ -75,24 +129,27 @@ def main(argv: List[str] = None) -> int:
     where.add_argument('--maps', type=Path, help='a folder of map_*.yaml (default: the shared 30-map scenario)')
     where.add_argument('--large36', nargs='?', const=REPO / 'out' / 'bench', type=Path, metavar='CACHE',
                        help='the generated 36-map scenario in CACHE/large36 (default out/bench)')
+    where.add_argument('--generated', nargs='?', const='buildings', metavar='NAMES',
+                       help='each generated building in out/bench (NAMES as bench_merge.py --generated: none for the '
+                            'thirteen <kind>36, unseen, unseen2, or a comma-separated list)')
     args = ap.parse_args(argv)
-    maps = (args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)).resolve()
-    if not sorted(maps.glob('map_*.yaml')):
-        print(f'bench_ab: no map_*.yaml in {maps}' + (' (run bench_merge.py --large36 first)'
-                                                      if args.large36 is not None else ''), file=sys.stderr)
-        return 2
-    if args.rounds < 1 or args.threads < 1:
-        print('bench_ab: --rounds and --threads must be at least 1', file=sys.stderr)
-        return 2
     base_rev = subprocess.run(['git', '-C', str(REPO), 'rev-parse', '--short', args.base], capture_output=True,
                               text=True)
     if base_rev.returncode != 0:
         print(f'bench_ab: unknown revision {args.base}', file=sys.stderr)
         return 2
+    if args.rounds < 1 or args.threads < 1:
+        print('bench_ab: --rounds and --threads must be at least 1', file=sys.stderr)
+        return 2
+    if args.generated is not None:
+        return compare_buildings(args)
+    maps = (args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)).resolve()
+    if not sorted(maps.glob('map_*.yaml')):
+        print(f'bench_ab: no map_*.yaml in {maps}' + (' (run bench_merge.py --large36 first)'
+                                                      if args.large36 is not None else ''), file=sys.stderr)
+        return 2
     with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
-        base = Path(tmp) / 'base'
-        subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', '-q', str(base), args.base],
-                       check=True)
+        base = _worktree(args.base, tmp)
         try:
             runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
             for n in range(args.rounds):
