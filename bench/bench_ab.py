@@ -21,13 +21,14 @@ both sides under the same conditions.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, Iterator, List
 
 import bench_merge  # bench/, beside this script
 import machine
@@ -72,13 +73,19 @@ def summary(name: str, runs: List[Dict[str, float]]) -> str:
             f'{" ".join(f"{w:.2f}" for w in walls)} |')
 
 
-def _worktree(base_rev: str, tmp: str) -> Path:
-    base = Path(tmp) / 'base'
-    subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', '-q', str(base), base_rev], check=True)
-    return base
+@contextlib.contextmanager
+def base_worktree(rev: str) -> Iterator[Path]:
+    """The revision checked out into a temporary git worktree, removed at the end."""
+    with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
+        base = Path(tmp) / 'base'
+        subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', '-q', str(base), rev], check=True)
+        try:
+            yield base
+        finally:
+            subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
 
 
-def compare_buildings(args: argparse.Namespace) -> int:
+def compare_buildings(args: argparse.Namespace, base_rev: str) -> int:
     """--generated: the two sides on each building, alternating within it; one table."""
     import make_sample_maps   # scripts/, on bench_merge's path
     names = bench_merge.building_names(args.generated)
@@ -91,25 +98,20 @@ def compare_buildings(args: argparse.Namespace) -> int:
         bench_merge.ensure_generated(cache, name)
     medians: Dict[str, Dict[str, float]] = {'base': {}, 'work': {}}
     rows = []
-    with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
-        base = _worktree(args.base, tmp)
-        try:
-            for name in names:
-                runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
-                for _ in range(args.rounds):
-                    for side, root in (('base', base), ('work', REPO)):
-                        runs[side].append(run_once(root, cache / name, args.threads))
-                for side in runs:
-                    medians[side][name] = statistics.median(r['wall'] for r in runs[side])
-                placed = {side: '/'.join(map(str, sorted({int(r['placed']) for r in runs[side]}))) for side in runs}
-                rows.append(f"| {name} | {medians['base'][name]:.2f} | {medians['work'][name]:.2f} | "
-                            f"{medians['work'][name] / medians['base'][name]:.2f} | {placed['base']} | "
-                            f"{placed['work']} |")
-                print(f'{name}: base {medians["base"][name]:.2f} s, work {medians["work"][name]:.2f} s', flush=True)
-        finally:
-            subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
+    with base_worktree(args.base) as base:
+        for name in names:
+            runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
+            for _ in range(args.rounds):
+                for side, root in (('base', base), ('work', REPO)):
+                    runs[side].append(run_once(root, cache / name, args.threads))
+            for side in runs:
+                medians[side][name] = statistics.median(r['wall'] for r in runs[side])
+            placed = {side: '/'.join(map(str, sorted({int(r['placed']) for r in runs[side]}))) for side in runs}
+            rows.append(f"| {name} | {medians['base'][name]:.2f} | {medians['work'][name]:.2f} | "
+                        f"{medians['work'][name] / medians['base'][name]:.2f} | {placed['base']} | {placed['work']} |")
+            print(f'{name}: base {medians["base"][name]:.2f} s, work {medians["work"][name]:.2f} s', flush=True)
     print(f'\none estimation per building and side, {args.threads} threads, {args.rounds} rounds alternating; base = '
-          f'{args.base}, work = working tree; {machine.describe()}\n')
+          f'{args.base} ({base_rev}), work = working tree; {machine.describe()}\n')
     print('| building | base median (s) | work median (s) | work / base | base placed | work placed |')
     print('|---|---|---|---|---|---|')
     print('\n'.join(rows))
@@ -142,23 +144,19 @@ def main(argv: List[str] = None) -> int:
         print('bench_ab: --rounds and --threads must be at least 1', file=sys.stderr)
         return 2
     if args.generated is not None:
-        return compare_buildings(args)
+        return compare_buildings(args, base_rev.stdout.strip())
     maps = (args.large36 / 'large36' if args.large36 is not None else (args.maps or DEFAULT_MAPS)).resolve()
     if not sorted(maps.glob('map_*.yaml')):
         print(f'bench_ab: no map_*.yaml in {maps}' + (' (run bench_merge.py --large36 first)'
                                                       if args.large36 is not None else ''), file=sys.stderr)
         return 2
-    with tempfile.TemporaryDirectory(prefix='bench_ab_') as tmp:
-        base = _worktree(args.base, tmp)
-        try:
-            runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
-            for n in range(args.rounds):
-                for side, root in (('base', base), ('work', REPO)):
-                    runs[side].append(run_once(root, maps, args.threads))
-                print(f'round {n + 1}/{args.rounds}: base {runs["base"][-1]["wall"]:.2f} s, '
-                      f'work {runs["work"][-1]["wall"]:.2f} s', flush=True)
-        finally:
-            subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(base)], check=False)
+    with base_worktree(args.base) as base:
+        runs: Dict[str, List[Dict[str, float]]] = {'base': [], 'work': []}
+        for n in range(args.rounds):
+            for side, root in (('base', base), ('work', REPO)):
+                runs[side].append(run_once(root, maps, args.threads))
+            print(f'round {n + 1}/{args.rounds}: base {runs["base"][-1]["wall"]:.2f} s, '
+                  f'work {runs["work"][-1]["wall"]:.2f} s', flush=True)
     print(f'\none estimation of {len(sorted(maps.glob("map_*.yaml")))} maps ({maps.name}), {args.threads} threads, '
           f'{args.rounds} rounds alternating; base = {args.base} ({base_rev.stdout.strip()}), work = working tree; '
           f'{machine.describe()}\n')
