@@ -90,6 +90,39 @@ def test_the_searches_a_spent_budget_postponed_are_made_by_the_next_estimation_o
     assert memory.postponed_inputs is None
 
 
+def test_an_estimate_afresh_of_the_final_maps_cut_by_the_budget_is_made_again(repo_root, monkeypatch):
+    """Once the maps have stopped changing, the kept placements are compared with an estimate afresh from them: the
+    only estimation that searches what the memory no longer searches (a map searched onto a union that static maps
+    do not grow). Cut by the search budget (a loaded machine: the node's rostest under load once left robot_5 of
+    these maps out for good, every later estimation complete), it counts its searches as postponed, so that the
+    node estimates the same maps again, and the next estimation makes it again."""
+    from multirobot_map_merge.estimation import estimator
+    grids, _ = _maps(repo_root, 'demo_late_group')
+    names = [f'robot_{k + 1}' for k in range(len(grids))]
+    s, memory, cache = EstimationSettings(evict=False), EstimationMemory(), FeatureCache()
+    real = estimator._estimate
+    afresh = []   # the postponed searches of each estimate afresh (no memory, no previous placements)
+
+    def estimate_cut_once(grids, settings, *args):
+        fresh = args[2] is None and args[4] is None
+        if fresh and not afresh:
+            settings = settings.replace(search_budget_s=0.0)
+        result = real(grids, settings, *args)
+        if fresh:
+            afresh.append(result.postponed)
+        return result
+    monkeypatch.setattr(estimator, '_estimate', estimate_cut_once)
+    previous, reference, results = [None] * len(grids), None, []
+    for _ in range(8):
+        results.append(estimate(grids, s, cache, preferred_reference=reference, previous=previous, memory=memory,
+                                names=names))
+        previous, reference = list(results[-1].transforms), results[-1].reference
+        if len(afresh) == 2:
+            break
+    assert len(afresh) == 2 and afresh[0] > 0 and afresh[1] == 0, afresh
+    assert results[-2].postponed >= afresh[0], [r.postponed for r in results]   # made in the estimation before
+
+
 def test_a_spent_budget_postpones_a_match_between_groups_that_needs_the_search(repo_root):
     """Unions of two groups of a live demo (test/data/demo_group_unions; the truth between them is the identity).
     Union b's descriptors find it only half a turn away, so matching it needs the search: with the budget spent it
