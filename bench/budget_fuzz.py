@@ -61,22 +61,20 @@ def run(maps: Path, seed: int, share: float) -> Tuple[int, int, List[tuple]]:
     try:
         pipeline = MergingPipeline(MapMergeParams().estimation_settings().replace(processes=False))
         gate = EstimationGate()
-        transforms, reference, now, steps = {}, None, 1000.0, []
+        now, steps = 1000.0, []
         for _ in range(ESTIMATIONS):
             if not gate.wanted((names, grids)):
                 break
             pipeline.feed(grids)
-            result = pipeline.estimate(preferred_reference=names.index(reference) if reference in names else None,
-                                       previous=[transforms.get(n) for n in names], names=names, now=now)
+            # as the node: the last placements of every robot (none yet: each None), its reference preferred
+            result = pipeline.estimate(previous=pipeline.transforms or [None] * len(grids), names=names, now=now)
             gate.estimated((names, grids), complete=not result.postponed and not result.held)
-            transforms = {n: t for n, t in zip(names, result.transforms) if t is not None}
-            reference = names[result.reference] if result.reference is not None else None
-            steps.append((len(transforms), result.postponed, result.held))
+            steps.append((sum(t is not None for t in result.transforms), result.postponed, result.held))
             now += rng.uniform(1.5, 4.0)
             answers.share = rng.choice(LATER_SHARES)
     finally:
         growth.SearchBudget.spent = real
-    return len(transforms), len(names), steps
+    return steps[-1][0], len(names), steps
 
 
 def main(argv: List[str] = None) -> int:
