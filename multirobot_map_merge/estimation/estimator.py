@@ -49,6 +49,14 @@ log = logging.getLogger('rosout.multirobot_map_merge.estimation.estimator')
 # by more (or places more maps); below, the two differ by the usual noise (a few cm) and
 # the verdicts on the kept ones stand
 FRESH_MOVE_M = 0.10
+# grids only the estimate afresh placed that the kept placements must contradict for it to stand instead of them (as
+# eviction.MIN_AGREEING: one map's word against the kept ones proves nothing); the live replays of the generated pillar
+# hall and mall (bench/replay_node.py --generated --until 102) ended with kept maps placed wrong that 5 and 11 maps
+# placed afresh contradicted
+FRESH_OVERRULES = 2
+# how _joined_from_fresh speaks of a grid one estimate alone placed: (where, its refusal, its joining)
+FRESH_ONLY = ('placed only there', 'the kept placements contradict its placement afresh', 'joins the kept placements')
+KEPT_ONLY = ('placed only as kept', 'the estimate afresh contradicts its kept placement', 'joins the estimate afresh')
 END_EVICTIONS = 2      # rounds in which the maps left out, searched at the end of an estimation, vote out members
 POSTPONED_ROUNDS = 3   # estimations in a row on the same maps with searches postponed before one has no budget
 
@@ -227,7 +235,9 @@ def estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     in the same frame, and places more, or moves one of them by more than FRESH_MOVE_M and the walls of the kept
     grids' pairs fit it better (relax.walls_fitting: a fresh estimate can be the worse one). When each places a grid
     the other does not, the kept placements stand and the grids only the fresh one placed join them where the kept
-    grids near them agree (_joined_from_fresh).
+    grids near them agree (_joined_from_fresh); unless they contradict FRESH_OVERRULES or more of those, and the fresh
+    one, joined the same way by the grids only the kept placements hold, holds more grids: then it stands. A fresh
+    estimate seeded elsewhere is compared in the kept reference's frame.
 
     With a memory, a grid placed for the first time is left out until a later estimation confirms it
     (confirmation.py); `now` (seconds, the caller's clock: ROS time in the node) tells it how long the maps have
@@ -314,10 +324,28 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     kept = {k for k, t in enumerate(result.transforms) if t is not None}
     placed_afresh = {k for k, t in enumerate(fresh.transforms) if t is not None}
     if fresh.reference != result.reference:
-        return result
+        # chosen afresh, the largest group can be seeded elsewhere: its placements are compared in the kept frame
+        fresh = _in_frame_of(fresh, result.reference)
+        if fresh is None:
+            return result
+    shifts = {k: tf.difference(fresh.transforms[k], result.transforms[k], known_corners(grids[k]))[1]
+              for k in kept & placed_afresh}
     if not kept <= placed_afresh:
-        return _joined_from_fresh(result, fresh, grids, settings, cache, placed_afresh - kept)
-    shifts = {k: tf.difference(fresh.transforms[k], result.transforms[k], known_corners(grids[k]))[1] for k in kept}
+        kept_side, refused = _joined_from_fresh(result, fresh, grids, settings, cache, placed_afresh - kept)
+        if len(refused) < FRESH_OVERRULES:
+            return kept_side
+        # the kept placements contradict grids only the estimate afresh placed: the estimate afresh, joined by the
+        # grids only the kept placements hold where it agrees with them, stands instead if it then holds more grids
+        fresh_side, against = _joined_from_fresh(fresh, result, grids, settings, cache, kept - placed_afresh,
+                                                 KEPT_ONLY)
+        held = [sum(t is not None for t in side.transforms) for side in (kept_side, fresh_side)]
+        if held[1] <= held[0]:
+            return kept_side
+        log.info('the final maps estimated afresh: the kept placements contradict grids %s placed only there, the '
+                 'estimate afresh grids %s placed only as kept; it stands with %d grids (the kept ones %d), grids %s '
+                 'moved (up to %.2f m at their corners)', sorted(refused), sorted(against), held[1], held[0],
+                 sorted(k for k, v in shifts.items() if v > FRESH_MOVE_M), max(shifts.values(), default=0.0))
+        return _replaced(fresh_side, result, shifts, memory, names)
     moved = max(shifts.values())
     placed = sum(t is not None for t in fresh.transforms)
     if placed == len(kept) and moved <= FRESH_MOVE_M:
@@ -333,9 +361,24 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
             return result
     log.info('the final maps estimated afresh: %d grids placed (%d before), moved by up to %.2f m at their corners',
              placed, len(kept), moved)
-    # as above, the verdicts on the placements it did not move beyond the usual noise stand for its placements:
-    # else the next estimation checks every placement again (30 robots: 47 checks, 3 s, when the fresh estimate
-    # placed a broken map more and moved the others by up to 0.04 m)
+    return _replaced(fresh, result, shifts, memory, names)
+
+
+def _in_frame_of(found: Estimate, reference: Optional[int]) -> Optional[Estimate]:
+    """The estimate restated in the frame of grid `reference` (None if it does not place that grid)."""
+    if reference is None or found.transforms[reference] is None:
+        return None
+    to_reference = tf.inverse(found.transforms[reference])
+    return replace(found, transforms=[to_reference @ t if t is not None else None for t in found.transforms],
+                   reference=reference)
+
+
+def _replaced(fresh: Estimate, result: Estimate, shifts: Dict[int, float], memory: EstimationMemory,
+              names: Sequence) -> Estimate:
+    """The estimate afresh in place of the kept one; the verdicts on the placements it did not move beyond the usual
+    noise (`shifts`: metres at each grid's corners) stand for its placements: else the next estimation checks every
+    placement again (30 robots: 47 checks, 3 s, when the fresh estimate placed a broken map more and moved the
+    others by up to 0.04 m)."""
     for k, shift in shifts.items():
         if shift <= FRESH_MOVE_M:
             move_verdict(memory, names[k], fresh.transforms[k])
@@ -344,15 +387,18 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
 
 
 def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Optional[Grid]],
-                       settings: EstimationSettings, cache: FeatureCache, extra: set) -> Estimate:
+                       settings: EstimationSettings, cache: FeatureCache, extra: set,
+                       only: Tuple[str, str, str] = FRESH_ONLY) -> Tuple[Estimate, List[int]]:
     """The kept placements, joined by the grids that only the estimate afresh placed (`extra`; same frame), each
-    where the kept grids near it agree with it (tracking's check, refined from its place afresh). Each estimate
-    placed a grid the other did not: the kept placements stand (their verdicts hold), and without this a grid
-    only the estimate afresh placed stayed out for good once the maps had stopped changing, its searches
-    remembered (test/data/demo_late_group estimated as the node does with a search budget of 0.1 s: the estimate
-    afresh placed robot_5, the kept placements robots 4 and 6)."""
+    where the kept grids near it agree with it (tracking's check, refined from its place afresh); and the grids of
+    `extra` they contradict. Each estimate placed a grid the other did not: the kept placements stand (their
+    verdicts hold), and without this a grid only the estimate afresh placed stayed out for good once the maps had
+    stopped changing, its searches remembered (test/data/demo_late_group estimated as the node does with a search
+    budget of 0.1 s: the estimate afresh placed robot_5, the kept placements robots 4 and 6). With the roles
+    swapped (`only`: KEPT_ONLY), the estimate afresh joined by the grids only the kept placements hold."""
     if not extra:
-        return result
+        return result, []
+    refused = []
     transforms, pairs = list(result.transforms), list(result.pairs)
     placed = {k: t for k, t in enumerate(transforms) if t is not None}
     res, prepared = _prepared_of(grids, settings, cache, set(placed) | extra)
@@ -362,14 +408,15 @@ def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Option
         trial = dict(placed)
         trial[k] = fresh.transforms[k]
         footprints = {m: footprint(grids[m], t) for m, t in trial.items()}
-        check = recheck(k, grids, prepared, trial, footprints, res, settings,
-                        failing='the kept placements contradict its placement afresh')
-        log.info('the final maps estimated afresh: grid %d, placed only there, %s', k,
-                 'joins the kept placements' if check.transform is not None else check.match.reason)
+        check = recheck(k, grids, prepared, trial, footprints, res, settings, failing=only[1])
+        log.info('the final maps estimated afresh: grid %d, %s, %s', k, only[0],
+                 only[2] if check.transform is not None else check.match.reason)
         if check.transform is not None:
             placed[k] = transforms[k] = check.transform
             pairs = [m for m in pairs if m.i != k] + [check.match]
-    return replace(result, transforms=transforms, pairs=pairs)
+        else:
+            refused.append(k)
+    return replace(result, transforms=transforms, pairs=pairs), refused
 
 
 def _prepared_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: FeatureCache,
