@@ -5,7 +5,7 @@ A transform maps column vectors: p_out = M @ [x, y, 1]. ``rigid(x, y, yaw)`` is 
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -30,6 +30,15 @@ def translation(x: float, y: float) -> np.ndarray:
 
 def inverse(m: np.ndarray) -> np.ndarray:
     return np.linalg.inv(m)
+
+
+def relative_to(transforms: Sequence[Optional[np.ndarray]], k: int) -> List[Optional[np.ndarray]]:
+    """The transforms (each into one frame; None: none) restated into the frame of transforms[k], which becomes
+    exactly the identity."""
+    to_k = inverse(transforms[k])
+    out = [to_k @ t if t is not None else None for t in transforms]
+    out[k] = np.eye(3)
+    return out
 
 
 def apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -259,11 +259,9 @@ def anchor_on_published(result: 'Estimate', published: Optional[Sequence[Optiona
     if shown.get(reference) == most:
         return
     anchor = max((a for a in candidates if shown[a] == most), key=lambda a: np.count_nonzero(grids[a].data >= 0))
-    to_anchor = tf.inverse(result.transforms[anchor])
     log.debug('the merge in the frame of grid %d, not of grid %d: %d published grids placed as shown', anchor,
               reference, most)
-    result.transforms = [to_anchor @ t if t is not None else None for t in result.transforms]
-    result.transforms[anchor] = np.eye(3)
+    result.transforms = tf.relative_to(result.transforms, anchor)
     result.reference = anchor
 
 

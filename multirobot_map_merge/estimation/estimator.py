@@ -368,9 +368,7 @@ def _in_frame_of(found: Estimate, reference: Optional[int]) -> Optional[Estimate
     """The estimate restated in the frame of grid `reference` (None if it does not place that grid)."""
     if reference is None or found.transforms[reference] is None:
         return None
-    to_reference = tf.inverse(found.transforms[reference])
-    return replace(found, transforms=[to_reference @ t if t is not None else None for t in found.transforms],
-                   reference=reference)
+    return replace(found, transforms=tf.relative_to(found.transforms, reference), reference=reference)
 
 
 def _replaced(fresh: Estimate, result: Estimate, shifts: Dict[int, float], memory: EstimationMemory,
@@ -386,27 +384,27 @@ def _replaced(fresh: Estimate, result: Estimate, shifts: Dict[int, float], memor
     return fresh
 
 
-def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Optional[Grid]],
+def _joined_from_fresh(base: Estimate, other: Estimate, grids: Sequence[Optional[Grid]],
                        settings: EstimationSettings, cache: FeatureCache, extra: set,
                        only: Tuple[str, str, str] = FRESH_ONLY) -> Tuple[Estimate, List[int]]:
-    """The kept placements, joined by the grids that only the estimate afresh placed (`extra`; same frame), each
-    where the kept grids near it agree with it (tracking's check, refined from its place afresh); and the grids of
-    `extra` they contradict. Each estimate placed a grid the other did not: the kept placements stand (their
-    verdicts hold), and without this a grid only the estimate afresh placed stayed out for good once the maps had
-    stopped changing, its searches remembered (test/data/demo_late_group estimated as the node does with a search
-    budget of 0.1 s: the estimate afresh placed robot_5, the kept placements robots 4 and 6). With the roles
+    """The kept placements (`base`), joined by the grids that only the estimate afresh (`other`) placed (`extra`;
+    same frame), each where the kept grids near it agree with it (tracking's check, refined from its place afresh);
+    and the grids of `extra` they contradict. Each estimate placed a grid the other did not: the kept placements
+    stand (their verdicts hold), and without this a grid only the estimate afresh placed stayed out for good once the
+    maps had stopped changing, its searches remembered (test/data/demo_late_group estimated as the node does with a
+    search budget of 0.1 s: the estimate afresh placed robot_5, the kept placements robots 4 and 6). With the roles
     swapped (`only`: KEPT_ONLY), the estimate afresh joined by the grids only the kept placements hold."""
     if not extra:
-        return result, []
+        return base, []
     refused = []
-    transforms, pairs = list(result.transforms), list(result.pairs)
+    transforms, pairs = list(base.transforms), list(base.pairs)
     placed = {k: t for k, t in enumerate(transforms) if t is not None}
     res, prepared = _prepared_of(grids, settings, cache, set(placed) | extra)
     for k in sorted(extra):
         if prepared[k] is None:
             continue
         trial = dict(placed)
-        trial[k] = fresh.transforms[k]
+        trial[k] = other.transforms[k]
         footprints = {m: footprint(grids[m], t) for m, t in trial.items()}
         check = recheck(k, grids, prepared, trial, footprints, res, settings, failing=only[1])
         log.info('the final maps estimated afresh: grid %d, %s, %s', k, only[0],
@@ -416,7 +414,7 @@ def _joined_from_fresh(result: Estimate, fresh: Estimate, grids: Sequence[Option
             pairs = [m for m in pairs if m.i != k] + [check.match]
         else:
             refused.append(k)
-    return replace(result, transforms=transforms, pairs=pairs), refused
+    return replace(base, transforms=transforms, pairs=pairs), refused
 
 
 def _prepared_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cache: FeatureCache,
