@@ -4,6 +4,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation import tracking
@@ -159,12 +160,13 @@ def test_the_node_relaxes_a_group_that_outgrew_the_tracked_one_with_trackings_li
     assert relaxed == [([2, 3, 4, 5], TRACKING)]
 
 
-def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_estimation(repo_root):
+@pytest.mark.parametrize('final', [False, True], ids=['tracking', 'final'])
+def test_a_large_group_joined_turned_is_relaxed_into_place(repo_root, final):
     """Four of the demo's final maps turned 0.6 degrees together (a group that joined the merge over few shared
-    walls, as nine maps of a generated mall did): tracking's relaxation (6 partners a grid, 3 iterations a level,
-    moves up to 0.2 m) leaves them, while the relaxation at the end of an estimation afresh (relax.FINAL: more
-    partners, more iterations, moves up to 0.5 m at the corners of such large maps) brings every map within 0.1
-    degrees and 10 cm."""
+    walls, as nine maps of a generated mall did), 0.3-0.4 m off at the far corners of such large maps: tracking's
+    relaxation (6 partners a grid, 3 iterations a level) and the one at the end of an estimation afresh (relax.FINAL:
+    more partners, more iterations) bring every map within 0.1 degrees and 10 cm. Tracking's refused it while a move
+    of more than 0.2 m was no refinement (a live 12-robot run kept three robots 0.3 degrees off for 115 s)."""
     from multirobot_map_merge.estimation.relax import FINAL, TRACKING
     _, names, grids, ref, true = _demo12(repo_root)
     group = [names.index(n) for n in ('robot_10', 'robot_6', 'robot_7', 'robot_8')]
@@ -174,11 +176,7 @@ def test_a_large_group_joined_turned_is_relaxed_into_place_by_the_end_of_an_esti
     placed = {k: turn @ true[k] if k in group else true[k] for k in range(len(names))}
     prepared = [prepare(g, 0.05, None) for g in grids]
     footprints = {k: footprint(grids[k], t) for k, t in placed.items()}
-
-    def worst(out):
-        return max(_error(grids[k], out[k], true[k])[0] for k in range(len(names))) if out is not None else 0.6
-    assert worst(relax(placed, ref, grids, prepared, footprints, 4.0, 0, TRACKING)) > 0.15
-    out = relax(placed, ref, grids, prepared, footprints, 4.0, 0, FINAL)
+    out = relax(placed, ref, grids, prepared, footprints, 4.0, 0, FINAL if final else TRACKING)
     assert out is not None
     for k in range(len(names)):
         rot, disp = _error(grids[k], out[k], true[k])

@@ -40,8 +40,12 @@ MIN_PAIRS = 10            # correspondences a pair needs (one way) to take part 
 FIT_PX = 1.0              # pixels: a wall this close to a wall of the other grid of its pair fits
 MAX_PARTNERS = 6          # grids each grid is refined against, those it shares most walls with
 CHUNK_POINTS = 50_000     # walls whose correspondences are found in one pass (_PairWalls): 18 MB at the peak
-MAX_MOVE_M = 0.2          # metres at a grid's corners: a larger move is no refinement (with 0.5, six early demo
-                          # maps under load had a right placement moved 0.37 m off, in 1 of 3 runs of the rostest)
+MAX_MOVE_M = 0.5          # metres at a grid's corners: a larger move is no refinement. A group that joined a few
+                          # tenths of a degree turned is that far off at the far corners of its grown maps: a live
+                          # 12-robot run (seed 1) kept robots 8, 11 and 12 0.3 degrees and 18-26 cm off for 115 s,
+                          # every relaxation bringing them within 5 cm refused for moves of 0.21-0.24 m (the limit was
+                          # 0.2, for a relaxation without robust weights or directions that had moved an early map of
+                          # the rostest under load 0.37 m off; on those maps no relaxation moves one 0.2 m now)
 
 
 class Limits(NamedTuple):
@@ -55,11 +59,10 @@ class Limits(NamedTuple):
 TRACKING = Limits()   # a live fleet's placements, kept from one estimation to the next (tracking.relax_placed)
 
 # at the end of one estimation of final maps (estimator.relax_group): a group that joined a few tenths of a degree
-# turned moves further (maze36 of the generated buildings, seed 2: 0.26 m put four maps 3.3-3.9 cells off right;
-# groups of 4-6 of the demo's final maps turned 0.6 degrees: 0.29-0.42 m), and a group of 9 that joined 0.6 degrees
-# turned over an open atrium (mall36, seed 3) is held by the few walls it shares with the rest, which 6 partners a grid
-# left out; it turned back by under a tenth of a degree per iteration
-FINAL = Limits(max_move_m=0.5, iterations=10, max_partners=12)
+# turned (maze36 of the generated buildings, seed 2; groups of 4-6 of the demo's final maps turned 0.6 degrees), or a
+# group of 9 that joined 0.6 degrees turned over an open atrium (mall36, seed 3), is held by the few walls it shares
+# with the rest, which 6 partners a grid left out; it turned back by under a tenth of a degree per iteration
+FINAL = Limits(iterations=10, max_partners=12)
 STILL_M, STILL_RAD = 0.002, 5e-5   # a step this small ends a level (a tenth of a degree is 1.7e-3 rad)
 DIRECTION_NOISE_M = 0.025  # a grid's wall direction off by its standard error weighs as a correspondence (one wall
                            # pixel) off by this. The generated classic36: the directions of 12 maps turn their group
