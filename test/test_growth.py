@@ -895,3 +895,30 @@ def test_an_estimation_afresh_checks_the_maps_placed_onto_a_few_on_its_relaxed_m
     calls.clear()
     estimate(grids, EstimationSettings(search_left_out=False))
     assert calls == ['relaxed']
+
+
+
+def test_the_node_estimates_its_final_maps_afresh_as_merge_maps_does(repo_root, monkeypatch):
+    """The node's estimations make no searches of the maps left out and no evictions (they judge partial maps;
+    tracking checks the kept placements); its one estimate afresh of the final maps, once they have stopped changing,
+    makes them, as merge_maps (a generated hospital replayed as growing maps ended with 13 of its 27 mergeable maps
+    placed, 27 so)."""
+    from multirobot_map_merge.estimation import estimator
+    from multirobot_map_merge.estimation.memory import EstimationMemory
+    from multirobot_map_merge.ros.params import MapMergeParams
+    grids, _ = _sample(repo_root, 'three_robots')
+    s = MapMergeParams().estimation_settings().replace(processes=False)
+    assert not (s.evict or s.relax_final or s.search_left_out)
+    memory, names = EstimationMemory(), ['a', 'b', 'c']
+    calls = []
+    real = estimator._estimate
+    monkeypatch.setattr(estimator, '_estimate', lambda *args: calls.append((args[4] is None, args[1])) or real(*args))
+    previous = estimate(grids, s, preferred_reference=0).transforms
+    for _ in range(3):   # tracked; tracked and checked on the final maps; and estimated afresh
+        calls.clear()
+        previous = estimate(grids, s, preferred_reference=0, previous=previous, memory=memory,
+                            names=names).transforms
+    assert [afresh for afresh, _ in calls] == [False, True]
+    assert calls[0][1] == s
+    assert calls[1][1] == s.replace(evict=True, search_left_out=True)
+    assert all(t is not None for t in previous)

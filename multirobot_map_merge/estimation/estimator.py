@@ -311,7 +311,10 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     if not due or not result.tracked:
         return result
     memory.fresh_inputs = inputs
-    fresh = _estimate(grids, settings, cache, preferred_reference, None, progress, None, None, None, budget)
+    # with the searches of the maps left out and eviction, as merge_maps: with the node's settings (neither, for
+    # partial maps) it ended a generated hospital replayed as growing maps with 13 of its 27 mergeable maps placed
+    fresh = _estimate(grids, settings.for_final_maps(), cache, preferred_reference, None, progress, None, None, None,
+                      budget)
     if fresh.postponed:
         # cut short by the search budget (a loaded machine): made again in the next estimation on these maps, with
         # its larger budget. Made once only, it was the last chance of a map whose search the memory skips (searched

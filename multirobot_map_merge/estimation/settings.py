@@ -26,14 +26,14 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
     # back: a second thread adds 0.14 of a core's work, a second process a whole core's)
     processes: bool = True
     # a member that the maps left out single out leaves the merge (eviction.py): for one estimation of final maps
-    # (merge_maps); the node turns it off (see ros/params.py)
+    # (merge_maps, the node's estimate afresh: for_final_maps); the node's others turn it off (see ros/params.py)
     evict: bool = True
     # the placements of an estimation afresh refined together at its end (relax.py, relax.FINAL): for one
     # estimation of final maps (merge_maps); in the node tracking refines the kept placements together instead, and
     # a group that outgrew the tracked one is refined with tracking's limits (estimator.relax_group)
     relax_final: bool = True
     # the grids left out of an estimation afresh searched once more onto the merge (growth.search_left_out): for one
-    # estimation of final maps; in the node tracking checks every placement again in the estimations after
+    # estimation of final maps; in the node's other estimations tracking checks every placement again in the next
     search_left_out: bool = True
     seed: int = 0
 
@@ -45,3 +45,10 @@ class EstimationSettings(SearchSettings, AcceptanceSettings, RefineSettings, Hyp
 
     def replace(self, **changes) -> 'EstimationSettings':
         return dataclasses.replace(self, **changes)
+
+    def for_final_maps(self) -> 'EstimationSettings':
+        """These settings for the node's one estimate afresh of its static final maps: with the searches of the maps
+        left out and eviction, as merge_maps. Not its final relaxation: the node's tracking relaxes the placements
+        after, and with it the estimate afresh of 30 robots took the node's longest estimation past its 5 s bound
+        (bench_node: 5.9 and 7.2 s)."""
+        return self.replace(evict=True, search_left_out=True)

@@ -107,7 +107,8 @@ class MapMergeParams:
         # estimation to the next (bench_node, 30 robots revealed: robots placed 1-2 degrees off in 10 of 25
         # statuses, against 7 of 34 with 3 at most without it); tracking drops a contradicted placement instead, and
         # refines the kept placements together (so no relaxation or search of the maps left out at the end of each
-        # estimation either)
+        # estimation either). The one estimate afresh of the static final maps searches the maps left out and
+        # evicts (EstimationSettings.for_final_maps)
         return EstimationSettings(feature=self.feature, confidence=self.estimation_confidence,
                                   search_budget_s=SEARCH_BUDGET, free_threshold=self.free_threshold,
                                   occupied_threshold=self.occupied_threshold, evict=False, relax_final=False,
