@@ -897,12 +897,11 @@ def test_an_estimation_afresh_checks_the_maps_placed_onto_a_few_on_its_relaxed_m
     assert calls == ['relaxed']
 
 
-
 def test_the_node_estimates_its_final_maps_afresh_as_merge_maps_does(repo_root, monkeypatch):
     """The node's estimations make no searches of the maps left out and no evictions (they judge partial maps;
     tracking checks the kept placements); its one estimate afresh of the final maps, once they have stopped changing,
     makes them, as merge_maps (a generated hospital replayed as growing maps ended with 13 of its 27 mergeable maps
-    placed, 27 so)."""
+    placed; with them, 27)."""
     from multirobot_map_merge.estimation import estimator
     from multirobot_map_merge.estimation.memory import EstimationMemory
     from multirobot_map_merge.ros.params import MapMergeParams
