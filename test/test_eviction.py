@@ -277,6 +277,27 @@ def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined(
     assert rot < 0.01 and shift < 0.1
 
 
+def test_maps_left_out_that_a_spent_search_budget_keeps_waiting_count_as_postponed():
+    """search_left_out with the search budget spent (the node's on a busy machine) searches nothing and counts its
+    maps as postponed, as the growth's searches are (the node then makes its estimate afresh of the final maps
+    again, with a larger budget; uncounted, a replay of the generated mall36 as the node estimates it ended with 21 of
+    its 27 mergeable maps placed, merge_maps 27). Spent between its rounds, so are the maps still waiting; with
+    nothing to search nothing is postponed; with time to spare the same maps join."""
+    from multirobot_map_merge.estimation.growth import SearchBudget
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 60, 210),
+             seen(world, 140, 230)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    grower.budget = SearchBudget([True])   # spent at once
+    assert grower.search_left_out(group) == 0 and grower.postponed == 1 and sorted(group.members) == [0, 1, 2]
+    grower.budget = SearchBudget([False, True])   # spent after the first round: map 3 joins there, map 4 waits
+    assert grower.search_left_out(group) == 1 and grower.postponed == 2 and sorted(group.members) == [0, 1, 2, 3]
+    grower.budget = SearchBudget()
+    assert grower.search_left_out(group) == 1 and grower.postponed == 2 and 4 in group.members
+    grower.budget = SearchBudget([True])   # nothing is left to search
+    assert grower.search_left_out(group) == 0 and grower.postponed == 2
+
+
 def test_a_map_whose_last_search_found_no_place_is_searched_again_once_a_member_left():
     """search_left_out's choice of the maps to search again (_left_out_todo): once a member has left, a map whose last
     search found no place (nothing on min_overlap_m2) is searched again, as is one placed over the member that left;
