@@ -51,6 +51,29 @@ def test_the_direction_of_rectilinear_walls_is_found_to_a_tenth_of_a_degree(degr
     assert found.sigma < math.radians(0.1)
 
 
+def _with_diagonal(work: np.ndarray, length_px: int) -> np.ndarray:
+    """The grid with a diagonal wall of `length_px` pixels along each axis across its middle room (a chamfered
+    corner, a wall of another direction)."""
+    out = work.copy()
+    for d in range(length_px):
+        out[200 + d, 200 + d] = 100
+    return out
+
+
+@pytest.mark.parametrize('degrees', [0.0, 23.4])
+def test_a_few_walls_of_another_direction_leave_the_direction_of_the_others(degrees):
+    """A diagonal wall of 2.8 m beside 135 m of rectilinear ones: their direction is found all the same, to a tenth of a
+    degree (a union of 20 maps of the generated mall36 had no direction by one diagonal metre among 273 m of walls,
+    its spread 2.6 degrees, and a group joining it was refused as imprecise); where such walls are a tenth of the
+    length, the walls are not rectilinear."""
+    rooms = _rooms(degrees)
+    found = orientation.wall_orientation(_with_diagonal(rooms, 40), 0.05)
+    assert found is not None
+    off = (math.degrees(found.angle) + degrees + 45) % 90 - 45
+    assert abs(off) < 0.1, off
+    assert orientation.wall_orientation(_with_diagonal(rooms, 180), 0.05) is None
+
+
 def test_walls_of_many_directions_have_no_direction():
     """A round hall (a cave, a radial building) gives no direction: its segments spread over every angle."""
     work = np.full((600, 600), -1, np.int8)
