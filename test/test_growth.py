@@ -904,8 +904,8 @@ def test_the_node_estimates_its_final_maps_afresh_as_merge_maps_does(repo_root, 
     tracking checks the kept placements); its one estimate afresh of the final maps, once they have stopped changing,
     makes them, as merge_maps (a generated hospital replayed as growing maps ended with 13 of its 27 mergeable maps
     placed; with them, 27), and is seeded as merge_maps seeds, not by the kept reference (the growth depends on its
-    seed: the generated mall36 replayed so ended with 22 of 27, seeded by its reference map_33, as by map 2, 21 or
-    30; merge_maps, and the estimate seeded by any of the other 23 mergeable maps, 27)."""
+    seed: the generated mall36 seeded by its map 21 or 30 places 22 of its 27 mergeable maps; merge_maps, seeding
+    by the largest map, 27)."""
     from multirobot_map_merge.estimation import estimator
     from multirobot_map_merge.estimation.memory import EstimationMemory
     from multirobot_map_merge.ros.params import MapMergeParams

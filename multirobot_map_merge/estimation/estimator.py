@@ -314,8 +314,8 @@ def _estimate_kept(grids: Sequence[Optional[Grid]], settings: EstimationSettings
     # with the searches of the maps left out and eviction, as merge_maps: with the node's settings (neither, for
     # partial maps) it ended a generated hospital replayed as growing maps with 13 of its 27 mergeable maps placed.
     # Seeded as merge_maps seeds (no preferred reference; compared in the kept frame below): the growth depends on
-    # its seed, and seeded by the kept reference, map_33 of the generated mall36, it placed 22 of the 27 (a group of
-    # five refused at 0.30 m > 0.25 m at the far corners in that frame, accepted in the largest map's)
+    # its seed (the generated mall36 seeded by its map 21 or 30 places 22 of its 27 mergeable maps, seeded by the
+    # largest 27), and the node keeps as its reference the map it first placed, whichever that was
     fresh = _estimate(grids, settings.for_final_maps(), cache, None, None, progress, None, None, None, budget)
     if fresh.postponed:
         # cut short by the search budget (a loaded machine): made again in the next estimation on these maps, with
