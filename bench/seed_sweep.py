@@ -28,12 +28,12 @@ def sweep(name: str, every: int, score) -> tuple:
     bench_merge.ensure_generated(cache, name)
     grids, truth = bench_merge.load_scenario(cache / name)
     mergeable = truth['mergeable']
+    files = [m['file'] for m in truth['maps']]
     rows = []
     for seed in mergeable[::every]:
         found = estimate(grids, EstimationSettings(), preferred_reference=seed)
         placed = {k: t for k, t in enumerate(found.transforms) if t is not None}
-        wrong = {truth['maps'].index(m) for m in truth['maps'] if m['file'] in {f for f, _, _ in wrong_of(
-            score_placements(score, truth, placed))}}
+        wrong = {files.index(f) for f, _, _ in wrong_of(score_placements(score, truth, placed))}
         rows.append((seed, len((set(placed) - wrong) & set(mergeable)), len(wrong)))
     return len(mergeable), rows
 
