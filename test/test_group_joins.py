@@ -1,5 +1,7 @@
 """A join of two groups beside a place where their unions overlap far more and contradict (pair.ELSEWHERE_SUPPORT):
 in a building of identical rooms the small join is a guess, right or wrong alike, and it is refused."""
+import dataclasses
+
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
@@ -55,3 +57,54 @@ def test_a_small_join_beside_a_much_larger_contradicted_overlap_is_refused(monke
     # as a single grid onto a union (not two groups) the rule does not apply
     monkeypatch.setattr(pair, 'ELSEWHERE_SUPPORT', 4.0)
     assert pair.match_pair(1, 0, pb, pa, s, onto_union=True, search=False).accepted
+
+
+def test_two_groups_that_meet_by_one_member_join_as_that_member_would_alone(repo_root, monkeypatch):
+    """test/data/classic_bridge: the side group of 12 maps meets the rest of classic36 by the 15.6 m2 it shares with
+    map_21. Their unions placed at the truth pass every rule but precision when the side group's union has no wall
+    direction (as when it held a broken map: classic36 seeded by map_05, 0.66 m expected at its far corners). map_21
+    alone passes there (its own corners; seeded by the largest map it joined alone, and the others onto it), so the
+    two groups join. Without map_21 no member of the side group meets the rest by the rules of a pair: they don't."""
+    from concurrent.futures import ThreadPoolExecutor
+    from test_orientation import _bridge
+    from multirobot_map_merge.estimation import orientation
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.verify import IMPRECISE, refusal, verify
+    grids, true, _, side_names = _bridge(repo_root)
+    real, blind = orientation.orientation, []
+    monkeypatch.setattr(orientation, 'orientation', lambda p: None if any(p is b for b in blind) else real(p))
+    names = side_names + ['map_16', 'map_24', 'rest']
+    s = EstimationSettings(processes=False)
+    grower = Grower([grids[n] for n in names], [prepare(grids[n], RES, s.feature) for n in names], RES, s,
+                    ThreadPoolExecutor(max_workers=2), names.index('rest'), None)
+    rest = names.index('rest')
+
+    def group(members, seed):
+        # placed at the truth, in the frame of `seed`
+        return grower.group_of(seed, {k: tf.inverse(true[names[seed]]) @ true[names[k]] for k in members})
+
+    side_to_rest = true['map_21']   # metric: the side group's frame (map_21's) -> the frame of the rest (map_16's)
+    side = group(range(len(side_names)), names.index('map_21'))
+    big = group([names.index('map_16'), names.index('map_24'), rest], rest)
+    part, union = side.union.prepared(), big.union.prepared()
+    blind.append(part)
+    at_truth = verify(part, union, tf.inverse(union.px_to_map) @ side_to_rest @ part.px_to_map, s)
+    assert refusal(at_truth, part, union, s, onto_union=True).startswith(IMPRECISE)
+    assert grower.joins_where_met(side, big, side_to_rest)
+    assert grower.joins_where_met(big, side, tf.inverse(side_to_rest))   # either group may be the smaller
+    without = [k for k in range(len(side_names)) if names[k] != 'map_21']
+    others = group(without, without[0])
+    blind.append(others.union.prepared())
+    assert not grower.joins_where_met(others, big, side_to_rest @ tf.inverse(true['map_21']) @ true[names[without[0]]])
+
+    # the match of the two unions, its descriptors proposing the truth: refused only as imprecise, and joined as one
+    monkeypatch.setattr(pair, 'hypotheses', lambda p, q, s, rng: [
+        tf.inverse(union.px_to_map) @ side_to_rest @ part.px_to_map])
+    monkeypatch.setattr(pair, 'correlate_candidates', lambda *args, **kwargs: [])
+    m = pair.match_pair(side.seed, big.seed, part, union, s, onto_union=True, between_groups=True)
+    assert m.reason.startswith(IMPRECISE) and m.imprecise_only
+    # merge_groups matches the smaller union (the rest's) onto the larger: this match, restated so
+    monkeypatch.setattr(grower, '_match_groups', lambda small, larger: dataclasses.replace(
+        m, i=small.seed, j=larger.seed, transform_m=tf.inverse(m.transform_m)))
+    groups = grower.merge_groups([big, side], [])
+    assert len(groups) == 1 and len(groups[0].members) == len(names)

@@ -93,7 +93,7 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
     again the grids whose search failed, against the group grown as far as it could otherwise
     (Grower.search_again); while the grids outside it could still form a larger group, the largest of those does
     the same with the rest. Last, the regrouped groups and the earlier largest ones that did not join the merge are
-    tried member by member (not a group that holds the reference)."""
+    tried member by member, whether or not one holds the preferred reference."""
     done: List[Group] = []
     carried: List[Group] = []   # groups regrouped from failed ones, not yet tried member by member
     while groups:
@@ -137,7 +137,7 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
                 main = both[0]
                 grower.search_again(main, alone)
         done.append(main)
-        done.sort(key=lambda g: -len(g.members))
+        done.sort(key=lambda g: (-len(g.members), reference not in g.members))   # the merge first, as _estimate's
         carried += regrouped
         groups = regrouped + [grower.group(k, settle=False) for k in alone]
     # a regrouped group that did not join the merge is tried member by member after all, and so is a group that was
@@ -146,7 +146,7 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
     # regrouped rest outgrew it to 15, and the 12 healthy maps of the 14 stayed out; one by one they join: 26 of 27)
     for group in carried + done[1:]:
         merge = done[0]
-        if group is merge or not merge.members.keys().isdisjoint(group.members) or reference in group.members:
+        if group is merge or not merge.members.keys().isdisjoint(group.members):
             continue
         for holder in (done, groups):
             if group in holder:

@@ -72,6 +72,7 @@ class PairMatch:
     # contradicted by one broken member, ranks below it (eviction.py judges the members there too)
     other_places_m: List[np.ndarray] = field(default_factory=list, repr=False)
     searched: bool = False   # a correlation search ran: the descriptors found no plausible placement
+    imprecise_only: bool = False   # refused as imprecise, and by no other rule
 
     @property
     def weight(self) -> float:
@@ -342,20 +343,24 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
 
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and as_good(c, best, s)), None)
-    result.reason = reason
     result.searched = searched
-    if not result.reason and rival is not None:
-        result.reason = (f'{AMBIGUOUS}: another placement agrees {rival.agreement:.2f} with support '
-                         f'{rival.support} vs {best.support}')
-    if not result.reason and between_groups:
+    # the rules after precision, judged between groups also when the match is imprecise: the grower then judges
+    # the join where the groups meet (growth.Grower.joins_where_met)
+    later = ''
+    if rival is not None:
+        later = (f'{AMBIGUOUS}: another placement agrees {rival.agreement:.2f} with support {rival.support} vs '
+                 f'{best.support}')
+    if not later and between_groups:
         # two unions that overlap far more elsewhere, where they contradict: a small join beside it is a guess
         elsewhere = max((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s)
                          and overlap_found(c, s, onto_union)), key=lambda c: c.support, default=None)
         if elsewhere is not None and elsewhere.support >= ELSEWHERE_SUPPORT * best.support:
-            result.reason = (f'the unions overlap elsewhere: a place with support {elsewhere.support} (here '
-                             f'{best.support}) agrees {elsewhere.agreement:.2f} and contradicts')
-    if not result.reason and result.confidence < s.confidence:
-        result.reason = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
+            later = (f'the unions overlap elsewhere: a place with support {elsewhere.support} (here '
+                     f'{best.support}) agrees {elsewhere.agreement:.2f} and contradicts')
+    if not later and result.confidence < s.confidence:
+        later = f'confidence {result.confidence:.2f} < {s.confidence:.2f}'
+    result.reason = reason or later
+    result.imprecise_only = reason.startswith(IMPRECISE) and not later
     result.accepted = not result.reason
     log.debug('pair %d-%d: %d descriptor matches (%d inliers), %d wall correspondences (%d inliers), confidence '
               '%.3f, agreement %.3f, overlap %.1f m2%s, %s', i, j, result.descriptor_matches, result.descriptor_inliers,
