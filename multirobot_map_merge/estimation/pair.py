@@ -344,8 +344,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     rival = next((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s) and plausible(c, s)
                   and as_good(c, best, s)), None)
     result.searched = searched
-    # the rules after precision, judged between groups also when the match is imprecise: the grower then judges
-    # the join where the groups meet (growth.Grower.joins_where_met)
+    # the rules after precision, judged also when the match is imprecise: between groups the grower judges such a
+    # match again where the groups meet (growth.Grower.joins_where_met)
     later = ''
     if rival is not None:
         later = (f'{AMBIGUOUS}: another placement agrees {rival.agreement:.2f} with support {rival.support} vs '
