@@ -92,6 +92,8 @@ def test_two_groups_that_meet_by_one_member_join_as_that_member_would_alone(repo
     assert refusal(at_truth, part, union, s, onto_union=True).startswith(IMPRECISE)
     assert grower.joins_where_met(side, big, side_to_rest)
     assert grower.joins_where_met(big, side, tf.inverse(side_to_rest))   # either group may be the smaller
+    alone = group([names.index('map_21')], names.index('map_21'))
+    assert not grower.joins_where_met(alone, big, side_to_rest)   # a map alone: its own match judged it
     without = [k for k in range(len(side_names)) if names[k] != 'map_21']
     others = group(without, without[0])
     blind.append(others.union.prepared())

@@ -646,7 +646,13 @@ class Grower:
         seeded by the largest map, map 21 joined the merge alone and the other 11 joined onto it. Had the merge been
         seeded by a member of the other group, the same would hold the other way round. So what joins does not
         depend on which group formed first: the members beyond the meeting place join by their matches within their
-        group, as they would onto the member that met the other."""
+        group, as they would onto the member that met the other.
+
+        Not for a group of one map: its own match judged its precision at its corners already, and a map placed onto
+        a single one is a pair, whose precision counts at the corners of both (the rule onto a union, here, counts
+        the moving map's alone)."""
+        if len(small.members) < 2 or len(big.members) < 2:
+            return False
         for group, other, to_other in ((small, big, small_to_big), (big, small, tf.inverse(small_to_big))):
             union = other.union.prepared()
             if union is None:
