@@ -819,8 +819,12 @@ class Grower:
         overlap its members (the others the growth searched onto it, _search), whether or not the growth searched them
         since, and join those whose placement passes the rules of a pair, shares at least LEFT_OUT_SHARE of the grid's
         known area with the merge, agrees with MIN_AGREEING members or more (as pairs; or one, where its placement is
-        precise: eviction.vouched_for) and contradicts none. Returns how many joined. The searches count against the
-        search budget as the growth's do, and those it cuts count as postponed.
+        precise: eviction.vouched_for) and contradicts none (or only members these searches placed, that it outweighs:
+        _outweighs). Returns how many joined. The searches count against the search budget as the growth's do, and
+        those it cuts count as postponed. A placement that passes all that but contradicts a member of the growth
+        counts as refused there: it is the map's vote on the members (evict_contradicted; the generated pillar_hall36
+        seeded by map_00: map_08, accepted by the union and agreeing with 9 members, contradicted by broken map_02
+        alone, had none while its last match was an accepted one, and stayed out).
 
         The growth does not search a grid whose refused match found where it overlaps the union and contradicts it (a
         broken map: a search finds the same), but in a repetitive building that match can be an alias while the true
@@ -880,6 +884,7 @@ class Grower:
                                               for k in todo]) + placed
             self.search_seconds += time.perf_counter() - started
             joining = []
+            blocked: Dict[int, List[int]] = {}   # grid -> the members it contradicts that it does not outweigh
             for m in matches:
                 if not m.accepted or not self.shares_enough(m.i, m.best.overlap_m2):
                     continue
@@ -888,8 +893,12 @@ class Grower:
                                                         self.s, verified=self.judged)
                 # a member taken out: vouched for only by members these searches did not place (see above)
                 vouchers = [j for j in agreeing if j not in self.left_out_joined] if m.i in self.evicted else agreeing
-                if vouched_for(vouchers, m.best, self.s) and self._outweighs(group, m, agreeing, contradicting):
+                if not vouched_for(vouchers, m.best, self.s):
+                    continue
+                if self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
+                else:
+                    blocked[m.i] = contradicting
             for m, agreeing, contradicting in joining:
                 for j in contradicting:
                     if j in group.members:
@@ -904,6 +913,15 @@ class Grower:
                 self.left_out_boxes[m.i] = footprint(self.grids[m.i], m.transform_m) \
                     if m.best is not None and m.best.overlap_m2 >= self.s.min_overlap_m2 else None
                 self.left_out_saw[m.i] = members
+                if m.i in blocked:
+                    # the merge refuses it for members that joined by the growth: they are judged by the votes of
+                    # the maps left out (evict_contradicted), and this placement is its vote
+                    m = dataclasses.replace(m, accepted=False, reason=f'contradicts members {blocked[m.i]}, '
+                                                                      f'which it does not outweigh')
+                    self.left_out_accepted.discard(m.i)
+                    self.refused[m.i] = m
+                    self._refused_onto(m, members)
+                    continue
                 if m.accepted:
                     self.left_out_accepted.add(m.i)
                     self.left_out_matches[m.i] = m
