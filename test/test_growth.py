@@ -540,9 +540,9 @@ def test_a_grid_a_search_placed_on_a_small_part_of_it_joins_only_where_it_agrees
 
     from multirobot_map_merge.estimation import growth
     from multirobot_map_merge.estimation.growth import Grower
-    monkeypatch.setattr(growth, 'members_agreement', lambda *args, **kwargs: agreement)
     from multirobot_map_merge.estimation.pair import PairMatch
     from multirobot_map_merge.estimation.verify import Placement
+    monkeypatch.setattr(growth, 'members_agreement', lambda *args, **kwargs: agreement)
     grids, poses = _sample(repo_root, 'three_robots')
     s = EstimationSettings()
     prepared = [prepare(g, 0.05, s.feature) for g in grids]

@@ -915,13 +915,9 @@ class Grower:
                 self.left_out_saw[m.i] = members
                 if m.i in blocked:
                     # the merge refuses it for members that joined by the growth: they are judged by the votes of
-                    # the maps left out (evict_contradicted), and this placement is its vote
+                    # the maps left out (evict_contradicted), and this placement, refused as below, is its vote
                     m = dataclasses.replace(m, accepted=False, reason=f'contradicts members {blocked[m.i]}, '
                                                                       f'which it does not outweigh')
-                    self.left_out_accepted.discard(m.i)
-                    self.refused[m.i] = m
-                    self._refused_onto(m, members)
-                    continue
                 if m.accepted:
                     self.left_out_accepted.add(m.i)
                     self.left_out_matches[m.i] = m
