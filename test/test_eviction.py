@@ -382,6 +382,54 @@ def test_maps_searched_at_the_end_single_out_a_broken_member_and_join_once_it_le
     assert grower.search_left_out(group, readmit=True) == 0 and 0 not in group.members and 0 in grower.evicted
 
 
+def _held_together(extra_voter: bool = True):
+    """A merge holding two broken maps (0 and 5: walls across the floor the others saw free, at columns 160 and 200)
+    among three right ones (1, 2, 6), and the maps left out, 3 and (with `extra_voter`) 4, that agree with the right
+    ones and contradict both broken ones."""
+    world = stubbed_building()
+    first, second = seen(world, 0, 300), seen(world, 100, 300)
+    first.data[40:160, 160] = 100
+    second.data[40:160, 200] = 100
+    grids = [first, seen(world, 0, 170), seen(world, 130, 300), seen(world, 60, 240), seen(world, 70, 250), second,
+             seen(world, 40, 200)]
+    if not extra_voter:
+        grids[4] = seen(world, 250, 300)   # a strip at the end of the hall, beside no broken wall: it joins
+    grower, group = _merge_of(grids, [1, 0, 2, 5, 6])
+    assert grower.search_left_out(group) == (0 if extra_voter else 1)
+    return grower, group
+
+
+def test_broken_members_that_maps_left_out_contradict_together_leave_together():
+    """Two broken members hold together in the merge: each map left out contradicts both, so none is singled out
+    (the generated warehouse36 seeded by map_03: broken maps 20 and 29, 13 of its mergeable maps left out; tunnels36
+    seeded by map_12: four broken members). Two maps that agree with more members than they contradict, and name the
+    same ones, take them out together; the maps then join, and the broken ones do not join again."""
+    grower, group = _held_together()
+    together = {}
+    refused = {k: grower.refused_onto[(k, group.seed)] for k in (3, 4)}
+    assert contradicted_members([3, 4], refused, group.members, group.union.footprints,
+                                lambda k, t: footprint(grower.grids[k], t), grower.prepared, (), grower.s,
+                                together=together) == []
+    assert {members: sorted(k for k, _ in voters) for members, voters in together.items()} \
+        == {frozenset({0, 5}): [3, 4]}
+    assert eviction.singled_out_together(together) == [frozenset({0, 5})]
+    assert eviction.singled_out_together({frozenset({0, 5}): together[frozenset({0, 5})][:1]}) == []   # one map
+    assert grower.evict_contradicted(group, [group], [], make_room=True)
+    assert grower.evicted == {0, 5} and sorted(group.members) == [1, 2, 6]
+    assert grower.search_left_out(group) == 2 and sorted(group.members) == [1, 2, 3, 4, 6]
+    for k in (3, 4):
+        rot, shift = tf.difference(group.members[k], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
+        assert rot < 0.01 and shift < 0.1
+    assert grower.search_left_out(group, readmit=True) == 0 and grower.evicted == {0, 5}
+
+
+def test_members_contradicted_together_by_one_map_alone_stay():
+    """One map's word does not take several members out: it may be the broken one, placed by one part."""
+    grower, group = _held_together(extra_voter=False)
+    assert not grower.evict_contradicted(group, [group], [], make_room=True)
+    assert sorted(group.members) == [0, 1, 2, 4, 5, 6]
+
+
 def test_a_right_member_taken_out_joins_again_at_the_end():
     """search_left_out(readmit=True): a member taken out on one map's word (a broken map placed at a round hall's
     hub by one part voted out the right map that had seen the hub) is searched onto the merge at the end of an

@@ -8,7 +8,9 @@ broken map falls into first then decides which robots are merged. Here each map 
 members one by one, at the place its match onto the union found; a member that is the only one to contradict maps
 the other members agree with is taken out of the group, and the maps left out are matched again. In a repetitive
 building the match onto the union can find an alias (a wing of identical rooms) better than the true place, which
-the broken member contradicts; the next best distinct places of that match are judged the same way.
+the broken member contradicts; the next best distinct places of that match are judged the same way. Where several
+broken members hold together in the merge (each placed by its part that overlaps the others), the maps left out
+contradict all of them at once: several maps that name the same few members single them out together.
 """
 from __future__ import annotations
 
@@ -34,17 +36,22 @@ MIN_AGREEING = 2   # members that must agree with a map left out for its contrad
 # one member alone vouches for a map's placement (vouched_for) where that placement is this precise: its expected error
 # at the far corners at most this share of max_corner_error_m (0.1 m by default)
 ONE_WITNESS_PRECISION = 0.4
+# members that maps left out may single out together (contradicted_members' `together`), at most, and the maps that
+# must name the same ones
+TOGETHER_MOST = 4
+TOGETHER_VOTERS = 2
 
 
 def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray], footprints: Mapping,
                   box, prepared: Sequence[Optional[PreparedGrid]], s: EstimationSettings,
-                  verified: Optional[Dict[tuple, Placement]] = None, union_support: Optional[int] = None):
+                  verified: Optional[Dict[tuple, Placement]] = None, union_support: Optional[int] = None,
+                  most: int = 1):
     """(agreeing, contradicting): the members that grid k, placed by `placed_k` (metric: its map -> the group's
     frame), agrees with as a pair would, and those it overlaps enough to mean something and that contradict it
-    (judged until two contradict it): a pair that agrees too little or contradicts inside both maps' views, not one
-    whose common walls, agreeing, are too few to accept it as a pair (counted as contradicting, map_35 of the
-    generated courtyard36, 81 agreeing walls over 21 m2 with map_15, kept broken map_16 from being singled out when
-    the maps were given in reversed order, and three maps out of the merge). `verified` keeps the
+    (judged until more than `most` contradict it): a pair that agrees too little or contradicts inside both maps'
+    views, not one whose common walls, agreeing, are too few to accept it as a pair (counted as contradicting, map_35
+    of the generated courtyard36, 81 agreeing walls over 21 m2 with map_15, kept broken map_16 from being singled
+    out when the maps were given in reversed order, and three maps out of the merge). `verified` keeps the
     verifications of one estimation by grids and placement: the maps left out are judged again after each
     eviction, mostly at the same places against the same members (generated hospital36: 2,230 verifications, 1,734
     of them different).
@@ -70,7 +77,7 @@ def judge_members(k: int, placed_k: np.ndarray, members: Mapping[int, np.ndarray
             agreeing.append(j)
         elif c.agreement < s.min_agreement or too_contradicted(c, s):
             contradicting.append(j)
-        if len(contradicting) > 1:
+        if len(contradicting) > most:
             break   # it singles out no member (a broken map contradicts several): the rest need not be judged
     return agreeing, contradicting
 
@@ -138,7 +145,8 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
                          prepared: Sequence[Optional[PreparedGrid]], keep: Sequence[int],
                          s: EstimationSettings, seen: Optional[Mapping[int, frozenset]] = None,
                          voters: Optional[Dict[int, list]] = None,
-                         verified: Optional[Dict[tuple, Placement]] = None, own: bool = False) -> List[int]:
+                         verified: Optional[Dict[tuple, Placement]] = None, own: bool = False,
+                         together: Optional[Dict[frozenset, list]] = None) -> List[int]:
     """The members (never those in `keep`) that maps left out single out: each such map, at the place its refused
     match onto the group (`refused`: grid -> that match, placing it in the group's frame) found, or at the first of
     that match's other places (PairMatch.other_places_m) where it does, agrees with at least MIN_AGREEING members
@@ -149,7 +157,11 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
     refused match was made against), a map votes only against a member its match saw; `voters`, if given, is filled
     with member -> [(grid, the place it voted from)]; `verified`: see judge_members. With `own`, each refused match
     is the map's own onto the union of `members`: where the union refused it for deep contradictions, a member too
-    small to judge as a pair can hold them (judge_members' union_support)."""
+    small to judge as a pair can hold them (judge_members' union_support).
+
+    `together`, if given, is filled with the maps that single out no member but contradict two to TOGETHER_MOST
+    members while they agree with more (and MIN_AGREEING or more): the set of those members -> [(grid, the place it
+    judged them from)], at the first such place of each map (see singled_out_together)."""
     votes: Counter = Counter()
     if len(members) <= MIN_AGREEING:
         return []
@@ -157,16 +169,26 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         m = refused.get(k)
         if not places(m, s) or prepared[k] is None:
             continue
+        several = None   # (the members, the place) where the map contradicts several, if any
         for place in [m.transform_m] + list(m.other_places_m):
             # the best place first; the others where the best is an alias of a repetitive building (the true
             # place, contradicted by the broken member, ranked below it)
             union_support = m.best.support if own and place is m.transform_m and too_contradicted(m.best, s) \
                 else None
             agreeing, contradicting = judge_members(k, place, members, footprints, footprint_of(k, place),
-                                                    prepared, s, verified=verified, union_support=union_support)
+                                                    prepared, s, verified=verified, union_support=union_support,
+                                                    most=1 if together is None else TOGETHER_MOST)
             if len(contradicting) == 1 and len(agreeing) >= MIN_AGREEING:
                 break
+            if together is not None and several is None and 1 < len(contradicting) <= TOGETHER_MOST \
+                    and len(agreeing) >= max(MIN_AGREEING, len(contradicting) + 1):
+                several = (frozenset(contradicting), place)
         else:
+            if several is not None and several[0].isdisjoint(keep) \
+                    and (seen is None or several[0] <= seen.get(k, frozenset())):
+                together.setdefault(several[0], []).append((k, several[1]))
+                log.debug('grid %d left out agrees with more members of the merge than it contradicts, and '
+                          'contradicts members %s', k, sorted(several[0]))
             continue
         j = contradicting[0]
         if j in keep or (seen is not None and j not in seen.get(k, ())):
@@ -177,3 +199,18 @@ def contradicted_members(left_out: Sequence[int], refused: Mapping[int, PairMatc
         log.debug('grid %d left out agrees with members %s of the merge and contradicts member %d alone', k,
                   agreeing, j)
     return [j for j, _ in votes.most_common()]
+
+
+def singled_out_together(together: Mapping[frozenset, list]) -> List[frozenset]:
+    """The sets of members that TOGETHER_VOTERS or more maps left out contradict, each while agreeing with more
+    members (contradicted_members' `together`), the most named first.
+
+    Two broken maps or more can hold together in the merge, each placed by its part that overlaps the other members,
+    and every map that overlaps their turned parts contradicts all of them: no member is singled out. The generated
+    warehouse36 seeded by map_03: broken maps 20 and 29 in a merge of 15; maps 2, 5, 14 and 35, at their true places,
+    agreed with 3-6 members each and contradicted both, and 13 mergeable maps stayed out. tunnels36 seeded by map_12:
+    nine maps left out agreed with 9-17 members each and contradicted the same four (broken maps 2, 7, 29, 33). A
+    broken map left out, placed by one part, contradicts the members its other part overlaps; another map that
+    contradicts the same members, and only those, is the evidence that they are the ones that are wrong."""
+    return sorted((members for members, voters in together.items()
+                   if len({k for k, _ in voters}) >= TOGETHER_VOTERS), key=lambda members: -len(together[members]))

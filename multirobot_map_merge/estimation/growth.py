@@ -30,7 +30,8 @@ from .memory import EstimationMemory
 from .pair import SEARCH_POSTPONED, PairMatch
 from .settings import EstimationSettings
 from .split import split
-from .eviction import contradicted_members, judge_members, members_agreement, places, vouched_for
+from .eviction import (contradicted_members, judge_members, members_agreement, places, singled_out_together,
+                       vouched_for)
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
@@ -528,21 +529,36 @@ class Grower:
         the edge of the rules), then grow it again with the grids in no group (`unplaced`) and match the other
         groups onto it. The member taken out stays out of this estimation. Whether one was taken out (the merge may
         then be another object of `groups`: merge_groups keeps the preferred reference's group). With `make_room`,
-        only a member without which a map that singled it out would join (_makes_room)."""
+        only a member without which a map that singled it out would join (_makes_room).
+
+        Where no member is singled out, the members that maps left out contradict together (eviction.
+        singled_out_together: broken maps that hold together in the merge) are taken out together, but only where a
+        map that named them would then join (_makes_room), with or without `make_room`: a map left out that joins
+        nowhere proves nothing against several members."""
         evicted = False
         for _ in range(MAX_PASSES):
             outside = [k for k, p in enumerate(self.prepared) if p is not None and k not in group.members]
             onto = {k: self.refused_onto[(k, group.seed)] for k in outside if (k, group.seed) in self.refused_onto}
             seen = {k: self.refused_seen.get((k, group.seed), frozenset()) for k in onto}
             voters: Dict[int, list] = {}
+            together: Dict[frozenset, list] = {}
             singled = contradicted_members(outside, onto, group.members, group.union.footprints,
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
-                                           (self.reference,), self.s, seen, voters, self.judged, own=True)
+                                           (self.reference,), self.s, seen, voters, self.judged, own=True,
+                                           together=together)
             if make_room:
-                singled = [j for j in singled if self._makes_room(group, j, voters[j])]
-            if not singled:
-                break
-            self._evict(group, singled[0], 'maps the other members agree with contradict it')
+                singled = [j for j in singled if self._makes_room(group, {j}, voters[j])]
+            if singled:
+                self._evict(group, singled[0], 'maps the other members agree with contradict it')
+            else:
+                # members that hold together: taken out together, only where a map that named them would join then
+                named = next((js for js in singled_out_together(together)
+                              if self._makes_room(group, js, together[js])), None)
+                if named is None:
+                    break
+                for j in sorted(named):
+                    self._evict(group, j, f'maps the other members agree with contradict it and members '
+                                          f'{sorted(named - {j})}')
             evicted = True
             # the halves a broken seed placed by its two parts hold together no more (split.py)
             groups.extend(split(self, group))
@@ -735,11 +751,11 @@ class Grower:
         link = group.links.get(j)
         return link is not None and link.best is not None and link.best.support >= place.support
 
-    def _makes_room(self, group: Group, j: int, voters: List[tuple]) -> bool:
-        """Whether a map that singled out member j (voters: (grid, where it voted from, metric in the group's frame))
-        would join the group's union without j there, by search_left_out's rules: the pair rules and LEFT_OUT_SHARE
-        of its known area in common."""
-        union = self.union_of(group, {k: t for k, t in group.members.items() if k != j})
+    def _makes_room(self, group: Group, out: Set[int], voters: List[tuple]) -> bool:
+        """Whether a map that singled out the members `out` (voters: (grid, where it voted from, metric in the group's
+        frame)) would join the group's union without them there, by search_left_out's rules: the pair rules and
+        LEFT_OUT_SHARE of its known area in common."""
+        union = self.union_of(group, {k: t for k, t in group.members.items() if k not in out})
         if union is None:
             return False
         for k, place in voters:
