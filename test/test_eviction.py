@@ -382,7 +382,7 @@ def test_maps_searched_at_the_end_single_out_a_broken_member_and_join_once_it_le
     assert grower.search_left_out(group, readmit=True) == 0 and 0 not in group.members and 0 in grower.evicted
 
 
-def _held_together(extra_voter: bool = True):
+def _held_together(extra_voter: bool = True, members=(1, 0, 2, 5, 6), sixth=(40, 200)):
     """A merge holding two broken maps (0 and 5: walls across the floor the others saw free, at columns 160 and 200)
     among three right ones (1, 2, 6), and the maps left out, 3 and (with `extra_voter`) 4, that agree with the right
     ones and contradict both broken ones."""
@@ -391,11 +391,11 @@ def _held_together(extra_voter: bool = True):
     first.data[40:160, 160] = 100
     second.data[40:160, 200] = 100
     grids = [first, seen(world, 0, 170), seen(world, 130, 300), seen(world, 60, 240), seen(world, 70, 250), second,
-             seen(world, 40, 200)]
+             seen(world, *sixth)]
     if not extra_voter:
         grids[4] = seen(world, 250, 300)   # a strip at the end of the hall, beside no broken wall: it joins
-    grower, group = _merge_of(grids, [1, 0, 2, 5, 6])
-    assert grower.search_left_out(group) == (0 if extra_voter else 1)
+    grower, group = _merge_of(grids, list(members))
+    assert grower.search_left_out(group) == (0 if extra_voter else 1) + (6 not in members)
     return grower, group
 
 
@@ -428,6 +428,15 @@ def test_members_contradicted_together_by_one_map_alone_stay():
     grower, group = _held_together(extra_voter=False)
     assert not grower.evict_contradicted(group, [group], [], make_room=True)
     assert sorted(group.members) == [0, 1, 2, 4, 5, 6]
+
+
+def test_members_contradicted_together_by_maps_that_agree_with_no_more_members_stay():
+    """Maps left out that agree with as many members as they contradict (two and two: right members 1 and 2, broken
+    members 0 and 5) take no one out: such a map can be the broken one, or at an alias, as well."""
+    grower, group = _held_together(members=(1, 0, 2, 5), sixth=(250, 300))   # map 6 joins, beside neither map
+    assert sorted(group.members) == [0, 1, 2, 5, 6]
+    assert not grower.evict_contradicted(group, [group], [], make_room=True)
+    assert sorted(group.members) == [0, 1, 2, 5, 6]
 
 
 def test_a_right_member_taken_out_joins_again_at_the_end():
