@@ -308,18 +308,24 @@ def test_merge_maps_terminated_removes_its_files_and_exits_143(repo_root, shared
     in one line. With Python's default handler it died at once and left the folder behind."""
     import signal
     import time
+
+    from multirobot_map_merge.estimation.workers import FOLDER_PREFIX
     shm = Path('/dev/shm')
     if not shm.is_dir():
         pytest.skip('no /dev/shm')
     maps = sorted(str(p) for p in (shared_dir / 'data' / 'dev' / 'large30_hospital_section').glob('map_*.yaml'))
-    before = set(shm.glob('map_merge_*'))
     proc = subprocess.Popen([sys.executable, str(repo_root / 'nodes' / 'merge_maps'), *maps],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def its_files() -> set:
+        # named by the process that sends them: another merge_maps running meanwhile has its own
+        return set(shm.glob(f'{FOLDER_PREFIX}{proc.pid}_*'))
+
     try:
         deadline = time.monotonic() + 60
-        while not set(shm.glob('map_merge_*')) - before and proc.poll() is None and time.monotonic() < deadline:
+        while not its_files() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        if proc.poll() is not None or not set(shm.glob('map_merge_*')) - before:
+        if proc.poll() is not None or not its_files():
             pytest.skip('the estimation sent no files to /dev/shm (no room there, or it ended first)')
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
@@ -329,7 +335,7 @@ def test_merge_maps_terminated_removes_its_files_and_exits_143(repo_root, shared
             proc.wait()
     assert proc.returncode == 143, err
     assert err.splitlines()[-1] == 'merge_maps: terminated' and 'Traceback' not in err, err
-    assert not set(shm.glob('map_merge_*')) - before
+    assert not its_files()
 
 
 @pytest.mark.parametrize('name', ['pair_large_simple_rooms_1', 'pair_large_tb3_sandbox_1',
