@@ -259,12 +259,22 @@ def merge_and_score(folder: Path, out_dir: Path, log: Optional[Path] = None, see
     return json.loads(proc.stdout)
 
 
+def reordered_truth(truth: dict, order: List[int]) -> dict:
+    """The truth of the same maps given to merge_maps in `order` (the k-th map given is the truth's map order[k]): its
+    indices (a map's place in the list, as merge_maps -v names the maps) count in that order."""
+    place = {k: n for n, k in enumerate(order)}
+    return dict(truth, maps=[truth['maps'][k] for k in order], mergeable=sorted(place[k] for k in truth['mergeable']),
+                components=[sorted(place[k] for k in c) for c in truth.get('components', [])])
+
+
 def reversed_truth(truth: dict) -> dict:
-    """The truth of the same maps given to merge_maps in reverse order: its indices (a map's place in the list, as
-    merge_maps -v names the maps) count in that order."""
-    n = len(truth['maps'])
-    return dict(truth, maps=truth['maps'][::-1], mergeable=sorted(n - 1 - k for k in truth['mergeable']),
-                components=[sorted(n - 1 - k for k in c) for c in truth.get('components', [])])
+    """The truth of the same maps given to merge_maps in reverse order."""
+    return reordered_truth(truth, list(range(len(truth['maps'])))[::-1])
+
+
+def shuffled_truth(truth: dict, seed: int) -> dict:
+    """The truth of the same maps given to merge_maps in an order drawn with `seed`."""
+    return reordered_truth(truth, [int(k) for k in np.random.default_rng(seed).permutation(len(truth['maps']))])
 
 
 def scenario_lines(truth: dict) -> List[str]:
@@ -369,9 +379,9 @@ def run_seeds(names: List[str], cache: Path, markdown: Optional[Path], again: bo
 
 
 def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False, seed: int = 0,
-                  out_rows: Optional[List[dict]] = None, reverse: bool = False) -> int:
+                  out_rows: Optional[List[dict]] = None, reverse: bool = False, shuffle: Optional[int] = None) -> int:
     """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process; with
-    `reverse`, its maps given in reverse order), scored; one row each (also appended to `out_rows`), the median and
+    `reverse`, its maps given in reverse order; with `shuffle`, in an order drawn with that seed), scored; one row each (also appended to `out_rows`), the median and
     worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis; with again, each
     such map is also matched again against right-placed maps and the final union)."""
     import make_sample_maps
@@ -389,7 +399,10 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         truth = json.loads((folder / 'truth.json').read_text())
         if reverse:
             truth = reversed_truth(truth)
-        result_dir = cache / (f'{name}_result' + (f'_seed{seed}' if seed else '') + ('_reversed' if reverse else ''))
+        if shuffle is not None:
+            truth = shuffled_truth(truth, shuffle)
+        result_dir = cache / (f'{name}_result' + (f'_seed{seed}' if seed else '') + ('_reversed' if reverse else '')
+                              + (f'_shuffled{shuffle}' if shuffle is not None else ''))
         log = result_dir / 'merge_maps.log'
         scored = merge_and_score(folder, result_dir, log, seed, truth)
         spec = make_sample_maps.GENERATED.get(name, {})
@@ -416,6 +429,8 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
             out_rows.append(rows[-1])
     done = [r for r in rows if isinstance(r, dict)]
     order = ', each building\'s maps in reverse order' if reverse else ''
+    if shuffle is not None:
+        order = f', each building\'s maps in an order drawn with seed {shuffle}'
     lines = [f'generated buildings ({cache}): merge_maps -v, one process per building, cold{order}; '
              f'{machine.describe()}', '',
              '| building | robots | placed right / mergeable | false merges | mergeable left out | broken placed '
@@ -504,6 +519,8 @@ def main() -> int:
     ap.add_argument('--reversed', action='store_true',
                     help='with --generated: each building\'s maps given to merge_maps in reverse order (the merge '
                          'should not depend on the order of the files)')
+    ap.add_argument('--shuffled', metavar='S', type=int,
+                    help='with --generated: each building\'s maps given to merge_maps in an order drawn with seed S')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario (or with --generated, those buildings) revealed as a fleet explores '
                          'it, estimated afresh at these shares of the reveal (comma-separated, 0..1) and scored: the '
@@ -521,8 +538,10 @@ def main() -> int:
         if unknown:
             ap.error(f'unknown generated scenario {unknown[0]} (one of {", ".join(make_sample_maps.GENERATED)})')
         cache = (args.large36 or REPO / 'out' / 'bench').resolve()
-        if args.reversed and (args.reveal or args.seeds != [0]):
-            ap.error('--reversed goes with --generated [--replay] alone')
+        if (args.reversed or args.shuffled is not None) and (args.reveal or args.seeds != [0]):
+            ap.error('--reversed and --shuffled go with --generated [--replay] alone')
+        if args.reversed and args.shuffled is not None:
+            ap.error('--reversed or --shuffled, not both')
         if args.reveal:
             lines = []
             for name in names:
@@ -534,7 +553,7 @@ def main() -> int:
             return 0
         if args.seeds != [0]:
             return run_seeds(names, cache, args.markdown, args.replay, args.seeds)
-        return run_buildings(names, cache, args.markdown, args.replay, reverse=args.reversed)
+        return run_buildings(names, cache, args.markdown, args.replay, reverse=args.reversed, shuffle=args.shuffled)
     if args.large36:
         return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)

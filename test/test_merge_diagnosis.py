@@ -73,3 +73,21 @@ def test_a_log_of_the_maps_given_in_reverse_order_is_read_with_the_truth_in_that
     # map_03, given first, refused onto the group of map_00, given last
     [verdict] = diagnose(log((0, 3, 0.8, 30.0, 'agreement 0.80 < 0.91')), scored, back)
     assert (verdict.map_index, verdict.outcome, verdict.cause) == (0, 'left out', 'agreement')
+
+
+
+def test_a_truth_reordered_for_a_drawn_order_names_each_map_by_its_place_in_that_order():
+    """bench_merge.py --generated --shuffled S: the maps are given in an order drawn with S, and the truth's indices
+    (mergeable maps, components) follow them there; the same S draws the same order."""
+    from bench_merge import reordered_truth, shuffled_truth
+    truth, _ = scenario(4, [0, 1, 3], [(0, True), (1, True)])
+    truth['components'] = [[0, 1, 3]]
+    moved = reordered_truth(truth, [2, 0, 3, 1])
+    assert [m['file'] for m in moved['maps']] == ['map_02.yaml', 'map_00.yaml', 'map_03.yaml', 'map_01.yaml']
+    assert moved['mergeable'] == [1, 2, 3] and moved['components'] == [[1, 2, 3]]
+    drawn = shuffled_truth(truth, 5)
+    assert drawn == shuffled_truth(truth, 5)
+    assert sorted(m['file'] for m in drawn['maps']) == sorted(m['file'] for m in truth['maps'])
+    assert [drawn['maps'][k]['file'] for k in drawn['mergeable']] == \
+        sorted((truth['maps'][k]['file'] for k in truth['mergeable']),
+               key=lambda f: [m['file'] for m in drawn['maps']].index(f))
