@@ -381,9 +381,10 @@ def run_seeds(names: List[str], cache: Path, markdown: Optional[Path], again: bo
 def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again: bool = False, seed: int = 0,
                   out_rows: Optional[List[dict]] = None, reverse: bool = False, shuffle: Optional[int] = None) -> int:
     """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process; with
-    `reverse`, its maps given in reverse order; with `shuffle`, in an order drawn with that seed), scored; one row each (also appended to `out_rows`), the median and
-    worst estimation, then why each mergeable map left out or placed wrong is so (merge_diagnosis; with again, each
-    such map is also matched again against right-placed maps and the final union)."""
+    `reverse`, its maps given in reverse order; with `shuffle`, in an order drawn with that seed), scored; one row
+    each (also appended to `out_rows`), the median and worst estimation, then why each mergeable map left out or
+    placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
+    and the final union)."""
     import make_sample_maps
     from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0

@@ -75,7 +75,6 @@ def test_a_log_of_the_maps_given_in_reverse_order_is_read_with_the_truth_in_that
     assert (verdict.map_index, verdict.outcome, verdict.cause) == (0, 'left out', 'agreement')
 
 
-
 def test_a_truth_reordered_for_a_drawn_order_names_each_map_by_its_place_in_that_order():
     """bench_merge.py --generated --shuffled S: the maps are given in an order drawn with S, and the truth's indices
     (mergeable maps, components) follow them there; the same S draws the same order."""
@@ -88,6 +87,6 @@ def test_a_truth_reordered_for_a_drawn_order_names_each_map_by_its_place_in_that
     drawn = shuffled_truth(truth, 5)
     assert drawn == shuffled_truth(truth, 5)
     assert sorted(m['file'] for m in drawn['maps']) == sorted(m['file'] for m in truth['maps'])
-    assert [drawn['maps'][k]['file'] for k in drawn['mergeable']] == \
-        sorted((truth['maps'][k]['file'] for k in truth['mergeable']),
-               key=lambda f: [m['file'] for m in drawn['maps']].index(f))
+    files = [m['file'] for m in drawn['maps']]
+    assert [files[k] for k in drawn['mergeable']] == \
+        sorted((truth['maps'][k]['file'] for k in truth['mergeable']), key=files.index)
