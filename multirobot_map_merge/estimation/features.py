@@ -67,11 +67,12 @@ def wall_fields(work: np.ndarray) -> WallFields:
     if len(walls):
         dist, labels = cv2.distanceTransformWithLabels(np.where(occupied, 0, 255).astype(np.uint8), cv2.DIST_L2,
                                                        cv2.DIST_MASK_PRECISE, labelType=cv2.DIST_LABEL_PIXEL)
-        # labels number the zero pixels in row-major scan order, the order of np.nonzero
-        nearest = labels.astype(np.int64) - 1
+        # labels number the zero pixels in row-major scan order, the order of np.nonzero; int32 as OpenCV gives
+        # them (half of int64's bytes in every grid kept and sent to the matching processes)
+        nearest = labels - 1
     else:
         dist = np.full(work.shape, np.inf, np.float32)
-        nearest = np.full(work.shape, -1, np.int64)
+        nearest = np.full(work.shape, -1, np.int32)
     side = free_side_field(work)
     return WallFields(walls, dist, nearest, side, side[wall_rows, wall_cols].astype(np.float64), known_depth(work))
 

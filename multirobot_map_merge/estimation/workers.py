@@ -54,9 +54,9 @@ PACKAGE_LOGGER = 'rosout.multirobot_map_merge'   # the core's loggers: a worker'
 WATCH_PERIOD_S = 1.0   # how often a worker checks that the estimating process is still there
 STARTED_TOGETHER_S = 0.05   # a task this long on each worker makes the pool start them all at once
 LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its grids, one at a time each)
-# the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is 20-25 bytes a pixel at the
-# working resolution (its fields), 4 MB for the median map of the generated 36-map buildings, 16 MB for a large
-# union; an estimation there wrote 1.7 GB in all
+# the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is about 21 bytes a pixel at
+# the working resolution (its fields), 3.5 MB for the median map of the generated 36-map buildings, 14 MB for a
+# large union; an estimation there writes 200-400 MB in all
 FILES_KEPT_BYTES = 256 * 2 ** 20
 SHARED_FOLDER = '/dev/shm'
 SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to go there: those kept and a batch's
