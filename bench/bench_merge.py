@@ -3,7 +3,8 @@
 
     scripts/env.sh python bench/bench_merge.py [--data DIR] [--repeat N] [--quick] [--curve] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --large36 [CACHE] [--repeat N] [--markdown FILE]
-    scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--seeds S ...] [--markdown FILE]
+    scripts/env.sh python bench/bench_merge.py [--large36 CACHE] --generated [NAMES] [--seeds S ... | --reversed |
+        --shuffled S ...] [--markdown FILE]
     scripts/env.sh python bench/bench_merge.py --reveal SHARES [--generated [NAMES]] [--markdown FILE]
 
 Each row runs in its own subprocess so that its peak resident memory (ru_maxrss / VmHWM) is its own.
@@ -350,28 +351,39 @@ def building_names(arg: str) -> List[str]:
     return arg.split(',')
 
 
-def run_seeds(names: List[str], cache: Path, markdown: Optional[Path], again: bool, seeds: List[int]) -> int:
-    """run_buildings once per seed (merge_maps --seed), then one table of every building's placed right / false
-    merges per seed: unseen buildings are as many other draws of the random sampling as other floor plans."""
-    status, per_seed = 0, {}
-    for seed in seeds:
-        print(f'--- seed {seed}', flush=True)
-        rows: List[dict] = []
-        status = max(status, run_buildings(names, cache, None, again, seed, rows))
-        per_seed[seed] = {r['name']: r for r in rows}
-    lines = [f'generated buildings, merge_maps --seed S ({cache}); {machine.describe()}', '',
-             '| building | ' + ' | '.join(f'seed {s}: right / mergeable, false' for s in seeds) + ' |',
-             '|---|' + '---|' * len(seeds)]
+def variants_table(names: List[str], per_variant: Dict[str, Dict[str, dict]]) -> List[str]:
+    """The table of every building's placed right / mergeable and false merges, a column per variant (label ->
+    building -> its row of run_buildings), and a last row of the totals."""
+    labels = list(per_variant)
+    lines = ['| building | ' + ' | '.join(f'{v}: right / mergeable, false' for v in labels) + ' |',
+             '|---|' + '---|' * len(labels)]
     for name in names:
-        cells = [per_seed[s].get(name) for s in seeds]
+        cells = [per_variant[v].get(name) for v in labels]
         lines.append(f'| {name} | ' + ' | '.join('-' if c is None else f"{c['correct']}/{c['mergeable']}, {c['wrong']}"
                                                  for c in cells) + ' |')
     totals = []
-    for s in seeds:
-        done = list(per_seed[s].values())
+    for v in labels:
+        done = list(per_variant[v].values())
         totals.append(f"{sum(r['correct'] for r in done)}/{sum(r['mergeable'] for r in done)}, "
                       f"{sum(r['wrong'] for r in done)}")
     lines.append('| all | ' + ' | '.join(totals) + ' |')
+    return lines
+
+
+def run_variants(names: List[str], cache: Path, markdown: Optional[Path], again: bool,
+                 variants: Dict[str, dict]) -> int:
+    """run_buildings once per variant (label -> its keyword arguments: `seed`, merge_maps --seed, or `shuffle`, the
+    maps in an order drawn with it), then one table of every building's placed right / false merges per variant:
+    unseen buildings are as many other draws of the random sampling and other orders of the files as other floor
+    plans."""
+    status, per_variant = 0, {}
+    for label, options in variants.items():
+        print(f'--- {label}', flush=True)
+        rows: List[dict] = []
+        status = max(status, run_buildings(names, cache, None, again, out_rows=rows, **options))
+        per_variant[label] = {r['name']: r for r in rows}
+    lines = [f'generated buildings, {", ".join(variants)} ({cache}); {machine.describe()}', ''] \
+        + variants_table(names, per_variant)
     print('\n'.join([''] + lines), flush=True)
     if markdown:
         markdown.write_text('\n'.join(lines) + '\n')
@@ -520,8 +532,9 @@ def main() -> int:
     ap.add_argument('--reversed', action='store_true',
                     help='with --generated: each building\'s maps given to merge_maps in reverse order (the merge '
                          'should not depend on the order of the files)')
-    ap.add_argument('--shuffled', metavar='S', type=int,
-                    help='with --generated: each building\'s maps given to merge_maps in an order drawn with seed S')
+    ap.add_argument('--shuffled', metavar='S', type=int, nargs='+',
+                    help='with --generated: each building\'s maps given to merge_maps in an order drawn with seed S '
+                         '(several: once per order, then a table of placed right and false merges per order)')
     ap.add_argument('--reveal', metavar='SHARES', type=lambda v: [float(x) for x in v.split(',')],
                     help='only the 30-map scenario (or with --generated, those buildings) revealed as a fleet explores '
                          'it, estimated afresh at these shares of the reveal (comma-separated, 0..1) and scored: the '
@@ -553,8 +566,13 @@ def main() -> int:
                 args.markdown.write_text('\n'.join(lines))
             return 0
         if args.seeds != [0]:
-            return run_seeds(names, cache, args.markdown, args.replay, args.seeds)
-        return run_buildings(names, cache, args.markdown, args.replay, reverse=args.reversed, shuffle=args.shuffled)
+            return run_variants(names, cache, args.markdown, args.replay,
+                                {f'seed {s}': dict(seed=s) for s in args.seeds})
+        if args.shuffled is not None and len(args.shuffled) > 1:
+            return run_variants(names, cache, args.markdown, args.replay,
+                                {f'order {s}': dict(shuffle=s) for s in args.shuffled})
+        return run_buildings(names, cache, args.markdown, args.replay, reverse=args.reversed,
+                             shuffle=args.shuffled[0] if args.shuffled else None)
     if args.large36:
         return run_generated(['large36'], args.large36.resolve(), max(1, args.repeat),
                              args.markdown)

@@ -90,3 +90,17 @@ def test_a_truth_reordered_for_a_drawn_order_names_each_map_by_its_place_in_that
     files = [m['file'] for m in drawn['maps']]
     assert [files[k] for k in drawn['mergeable']] == \
         sorted((truth['maps'][k]['file'] for k in truth['mergeable']), key=files.index)
+
+
+def test_the_table_of_several_orders_or_seeds_has_a_column_each_and_their_totals():
+    """bench_merge.py --generated --shuffled S S ... (or --seeds S ...): a column per variant, '-' for a building a
+    variant did not score, and a last row of each variant's totals."""
+    from bench_merge import variants_table
+
+    def row(name, correct, mergeable, wrong):
+        return {'name': name, 'correct': correct, 'mergeable': mergeable, 'wrong': wrong}
+    per_variant = {'order 3': {'a36': row('a36', 27, 27, 0), 'b36': row('b36', 17, 27, 9)},
+                   'order 4': {'a36': row('a36', 25, 27, 0)}}
+    lines = variants_table(['a36', 'b36'], per_variant)
+    assert lines[0] == '| building | order 3: right / mergeable, false | order 4: right / mergeable, false |'
+    assert lines[2:] == ['| a36 | 27/27, 0 | 25/27, 0 |', '| b36 | 17/27, 9 | - |', '| all | 44/54, 9 | 25/27, 0 |']
