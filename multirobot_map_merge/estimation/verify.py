@@ -235,10 +235,14 @@ def free_standing(walls: np.ndarray, grid: np.ndarray, size_px: float, ring_px: 
     window, joined, labels, stats, extent = found
     walls, grid, count = walls[window], grid[window], len(stats)
     # a ring around each piece (where two rings meet, the larger label takes it: pieces are far apart)
-    around = cv2.dilate(labels.astype(np.float32), np.ones((2 * ring_px + 1,) * 2, np.uint8)).astype(np.int64)
+    around = cv2.dilate(labels.astype(np.uint16 if count < 65536 else np.float32),
+                        np.ones((2 * ring_px + 1,) * 2, np.uint8))
     around[joined > 0] = 0
-    ring = np.bincount(around.ravel(), minlength=count)
-    free = np.bincount(around.ravel(), weights=(grid == 0).ravel(), minlength=count)
+    # counted over the rings alone: most of the window is background, whose count is not needed
+    at = np.flatnonzero(around)
+    label = around.ravel().take(at).astype(np.int64)
+    ring = np.bincount(label, minlength=count)
+    free = np.bincount(label[grid.ravel().take(at) == 0], minlength=count)
     small = (extent <= size_px) & (free >= MOVABLE_FREE_SHARE * np.maximum(ring, 1))
     small[0] = False   # the background
     out[window] = walls & small[labels]
