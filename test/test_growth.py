@@ -699,6 +699,31 @@ def test_groups_merged_beside_a_larger_one_grow_by_descriptors_alone(repo_root, 
     assert grown[-1] == (5, True) and len(merged) == 1
 
 
+def test_the_last_group_match_onto_a_union_is_made_together_with_the_first_onto_the_next(repo_root, monkeypatch):
+    """merge_groups: where one group is left to match onto a union, the match that follows it (onto the next
+    union) is made with it in one batch (the matching processes work on both at once) and kept: merge_groups uses it
+    when it gets there instead of matching again, and makes no match alone."""
+    from multirobot_map_merge.estimation.growth import Grower
+    from multirobot_map_merge.estimation.pair import PairMatch
+    grower, big = _three_placed_and_three_more(repo_root, 'chain3', 'three_robots')
+    pair = grower.group(3)
+    pair.union.add(4, grower.grids[4], grower.prepared[4], np.eye(3))
+    single = grower.group(5)
+    grower.tried[(5, big.key)] = big.union.version   # grid 5 was matched onto the big union already
+    batches, alone = [], []
+
+    def match_all(calls):
+        batches.append([(c.i, c.j) for c in calls])
+        return [PairMatch(c.i, c.j, reason='refused') for c in calls]
+
+    monkeypatch.setattr(grower.matcher, 'match_all', match_all)
+    monkeypatch.setattr(Grower, '_group_match', lambda self, small, onto, spent:
+                        alone.append((small.seed, onto.seed)) or PairMatch(small.seed, onto.seed, reason='refused'))
+    merged = grower.merge_groups([big, pair, single], [])
+    assert len(merged) == 3
+    assert batches == [[(3, 0), (5, 3)]] and alone == []
+
+
 def test_a_failed_search_waits_for_search_again_which_a_found_overlap_does_not_stop(repo_root):
     """A grid whose search against a group failed in this estimation is not searched against it again as the group
     grows (the broken maps of a generated building were searched in vain against every larger union), until
@@ -752,7 +777,7 @@ def test_members_of_a_group_that_cannot_join_regroup_without_its_seed(repo_root,
     monkeypatch.setattr(Grower, 'match', lambda self, group, grids, search: [match(self, k, group, search)
                                                                              for k in grids])
     monkeypatch.setattr(Grower, '_match_groups', match_groups)
-    monkeypatch.setattr(Grower, '_match_ahead', lambda self, big, smalls: None)
+    monkeypatch.setattr(Grower, '_match_ahead', lambda self, upcoming: None)
     groups = search_grow(grower, [merge, failed], 0)
     assert set(groups[0].members) == {0, 1, 2}
     regrouped = events.index(('groups', frozenset({4, 5}), frozenset({0, 1, 2})))
@@ -858,7 +883,7 @@ def test_a_group_that_was_the_largest_once_is_tried_member_by_member_when_anothe
 
     monkeypatch.setattr(Grower, 'match', lambda self, group, grids, search: [match(k, group) for k in grids])
     monkeypatch.setattr(Grower, '_match_groups', lambda self, small, big: PairMatch(small.seed, big.seed, reason='no'))
-    monkeypatch.setattr(Grower, '_match_ahead', lambda self, big, smalls: None)
+    monkeypatch.setattr(Grower, '_match_ahead', lambda self, upcoming: None)
     groups = [first] + [grower.group(k) for k in (0, 1, 2, 3)]
     groups = search_grow(grower, groups, None)
     assert set(groups[0].members) == {0, 1, 2, 3, 4}
