@@ -134,7 +134,7 @@ def verify(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, s: EstimationS
         return result
     x0, y0, x1, y1 = box
     warped = warp_into(pi.work.view(np.uint8), model, box, 255).view(np.int8)
-    both = (warped >= 0) & (pj.work[y0:y1, x0:x1] >= 0)
+    both = (warped | pj.work[y0:y1, x0:x1]) >= 0   # known in both: neither sign bit set (unknown is -1)
     common = cv2.countNonZero(both.view(np.uint8))   # counted and bounded by OpenCV: np.nonzero here was a hot spot
     result.overlap_m2 = float(common) * pi.resolution ** 2
     if common == 0:
