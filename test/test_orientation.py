@@ -124,22 +124,25 @@ def test_a_map_sharing_a_small_area_is_placed_once_the_wall_directions_fix_its_a
     assert alone.reason.startswith(IMPRECISE)
 
 
-@pytest.mark.parametrize('degrees', [0.6, 0.9])
-def test_a_placement_turned_about_the_shared_walls_is_turned_back_onto_the_directions(repo_root, degrees):
-    """Turned about the centre of the walls the maps share, the placement still agrees there (plausible) but is
-    imprecise; turned onto the wall directions it is within 0.05 degrees and passes."""
+@pytest.mark.parametrize('degrees, shift_px', [(0.6, (0.0, 0.0)), (0.9, (0.0, 0.0)), (0.6, (0.7, 0.7)),
+                                               (0.6, (1.0, 0.0)), (0.9, (-1.0, 0.0))])
+def test_a_placement_turned_about_the_shared_walls_is_turned_back_onto_the_directions(repo_root, degrees, shift_px):
+    """Turned about the centre of the walls the maps share (and shifted by a pixel or two, as a search leaves a
+    small common area), the placement still agrees there (plausible) but is imprecise; turned onto the wall
+    directions and moved into place it is within 0.05 degrees and 0.035 m and passes (turned alone, the shifted ones
+    were 0.050-0.053 m off)."""
     grids, true, _, _ = _bridge(repo_root)
     s = EstimationSettings()
     pm, pr = prepare(grids['map_21'], 0.05, None), prepare(grids['rest'], 0.05, None)
     right = tf.inverse(pr.px_to_map) @ true['map_21'] @ pm.px_to_map
     _, centre = covariance(pm, pr, right, s.verify_tolerance)
-    off = verify(pm, pr, tf.translation(*centre) @ tf.rigid(0.0, 0.0, math.radians(degrees))
+    off = verify(pm, pr, tf.translation(*shift_px) @ tf.translation(*centre) @ tf.rigid(0.0, 0.0, math.radians(degrees))
                  @ tf.translation(-centre[0], -centre[1]) @ right, s)
     assert plausible(off, s) and refusal(off, pm, pr, s, onto_union=True).startswith(IMPRECISE)
     turned = turned_to_directions(pm, pr, off, s, onto_union=True)
     assert turned is not None
     rot, disp = _error(grids['map_21'], pr.px_to_map @ turned.transform @ tf.inverse(pm.px_to_map), true['map_21'])
-    assert rot < 0.05 and disp < 0.05, (rot, disp)
+    assert rot < 0.05 and disp < 0.035, (rot, disp)
 
 
 def test_a_group_bridged_by_a_small_area_is_turned_back_by_the_directions_of_its_maps(repo_root, monkeypatch):

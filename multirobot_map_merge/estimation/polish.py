@@ -74,16 +74,22 @@ class _OneWay:
         return (float(np.dot((d * d).ravel(), deep.ravel())), n) if n else (0.0, 0)
 
 
-def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:
-    """Of the placements (pixels i -> pixels j) near each of `models` (estimates of one place) with the lowest
-    symmetric wall-distance cost, the lowest: on a small common area ICP settles in several nearby minima."""
-    forward, backward = _OneWay(pi, pj, models[0], rng), _OneWay(pj, pi, tf.inverse(models[0]), rng)
+def _cost(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, rng: np.random.Generator
+          ) -> Callable[[np.ndarray], float]:
+    """The symmetric wall-distance cost of placements of grid i on grid j near `model` (see the module)."""
+    forward, backward = _OneWay(pi, pj, model, rng), _OneWay(pj, pi, tf.inverse(model), rng)
 
     def cost(m: np.ndarray) -> float:
         a, na = forward.cost(m)
         b, nb = backward.cost(tf.inverse(m))
         return (a + b) / (na + nb) if na + nb >= MIN_POINTS else math.inf
+    return cost
 
+
+def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    """Of the placements (pixels i -> pixels j) near each of `models` (estimates of one place) with the lowest
+    symmetric wall-distance cost, the lowest: on a small common area ICP settles in several nearby minima."""
+    cost = _cost(pi, pj, models[0], rng)
     best, best_cost = models[0], math.inf
     for given in models:
         # turn about the middle of i's walls as placed, so that rotation and translation steps are independent
@@ -95,6 +101,15 @@ def polish(pi: PreparedGrid, pj: PreparedGrid, models: Sequence[np.ndarray], rng
             if found_cost < best_cost:
                 best, best_cost = found, found_cost
     return best
+
+
+def slid(pi: PreparedGrid, pj: PreparedGrid, model: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """`model` (pixels i -> pixels j) moved, not turned, to the lowest symmetric wall-distance cost nearby: for a
+    placement whose angle something other than the shared walls fixed (orientation.aligned, which turns it about the
+    middle of a small common area and leaves it shifted)."""
+    cost = _cost(pi, pj, model, rng)
+    return _turned(model, np.zeros(2), descend(cost, lambda p: _turned(model, np.zeros(2), p),
+                                                first_steps=(0.0, FIRST_STEPS[1])))
 
 
 def _turned(model: np.ndarray, centre: np.ndarray, p: np.ndarray) -> np.ndarray:
