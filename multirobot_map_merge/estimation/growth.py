@@ -627,7 +627,7 @@ class Grower:
                 return len(small.members) == 1 and self.tried.get((small.seed, big.key)) == big.union.version
 
             def upcoming(a: int, b: int) -> Iterator[Tuple[Group, Group]]:
-                # the pairs (small, big) matched from groups[b] onto groups[a] on while none joins, in that order
+                # the pairs (small, big) this loop matches from (groups[b], groups[a]) on while none joins, in order
                 for a2 in range(a, len(groups)):
                     for b2 in range(b if a2 == a else a2 + 1, len(groups)):
                         if not matched(groups[b2], groups[a2]):
