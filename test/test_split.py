@@ -4,7 +4,9 @@ import numpy as np
 
 from multirobot_map_merge import transforms as tf
 from multirobot_map_merge.estimation.split import parts_of, split
-from test_eviction import _merge_of, seen, stubbed_building
+from multirobot_map_merge.estimation.eviction import verified_against
+from multirobot_map_merge.grid import Grid
+from test_eviction import RES, _merge_of, seen, stubbed_building
 
 
 def _halves(shift_east: np.ndarray):
@@ -42,3 +44,35 @@ def test_the_part_with_the_reference_is_kept():
     new = split(grower, group)
     assert sorted(group.members) == [2, 3] and sorted(new[0].members) == [0, 1]
     assert np.allclose(group.members[group.seed], np.eye(3))   # the kept part's seed frames the group
+
+
+def _halves_met_by_few_walls(west: np.ndarray):
+    """A hall whose west maps (0: columns 0-190, 1: 0-120) and east maps (2: the north of 160-300, 3: its south, 4:
+    200-300) are placed in one group, the west ones by `west`. Map 0 shares with maps 2 and 3 a strip (columns
+    160-190) with 45 wall pixels each: too few for a pair to judge, enough for map 0 onto the union of the east."""
+    world = np.zeros((200, 300), np.int8)
+    world[0, :] = world[-1, :] = world[:, 0] = world[:, -1] = 100
+    world[0:60, 100] = world[140:200, 220] = world[0:15, 175] = world[185:200, 175] = 100
+    def part(c0, c1, r0=0, r1=200):
+        data = np.full(world.shape, -1, np.int8)
+        data[r0:r1, c0:c1] = world[r0:r1, c0:c1]
+        return Grid(data, RES)
+    grids = [part(0, 190), part(0, 120), part(160, 300, 0, 110), part(160, 300, 90, 200), part(200, 300)]
+    grower, group = _merge_of(grids, [2, 3, 4])
+    for k in (0, 1):
+        group.union.add(k, grids[k], grower.prepared[k], west)
+    return grower, group
+
+
+def test_parts_that_meet_where_a_member_passes_alone_onto_the_other_hold_together():
+    """As two groups join where a member of one passes alone onto the other's union (growth.joins_where_met), the
+    parts stay together when no pair links them but such a member does; placed wrong, they fall apart."""
+    grower, group = _halves_met_by_few_walls(np.eye(3))
+    s = grower.s
+    for east in (2, 3):   # no pair of a west and an east map judges the placement
+        c = verified_against(0, np.eye(3), east, np.eye(3), grower.prepared, s)
+        assert c.support + c.conflicts < s.min_support
+    assert parts_of(grower, group) == [{0, 1, 2, 3, 4}]
+    assert split(grower, group) == []
+    grower, group = _halves_met_by_few_walls(tf.rigid(0.3, 0.0, 0.0))   # the west 0.3 m off
+    assert parts_of(grower, group) == [{2, 3, 4}, {0, 1}]

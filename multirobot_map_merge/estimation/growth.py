@@ -689,21 +689,30 @@ class Grower:
         if len(small.members) < 2 or len(big.members) < 2:
             return False
         for group, other, to_other in ((small, big, small_to_big), (big, small, tf.inverse(small_to_big))):
-            union = other.union.prepared()
-            if union is None:
-                continue
-            boxes = list(other.union.footprints.values())
-            for k, t in group.members.items():
-                box = footprint(self.grids[k], to_other @ t)
-                if not any(overlap_area(box, b) > 0.0 for b in boxes):
-                    continue
-                c = self.passes_onto(self.prepared[k], union, to_other @ t)
-                if c is not None:
-                    log.debug('groups %d and %d: member %d passes alone onto group %d where they meet (agreement '
-                              '%.3f, overlap %.1f m2, %.2f m expected at its far corners)', small.seed, big.seed, k,
-                              other.seed, c.agreement, c.overlap_m2, c.corner_error_m)
-                    return True
+            found = self.member_passing(group.members, other.union.prepared(), other.union.footprints, to_other)
+            if found is not None:
+                k, c = found
+                log.debug('groups %d and %d: member %d passes alone onto group %d where they meet (agreement '
+                          '%.3f, overlap %.1f m2, %.2f m expected at its far corners)', small.seed, big.seed, k,
+                          other.seed, c.agreement, c.overlap_m2, c.corner_error_m)
+                return True
         return False
+
+    def member_passing(self, members: Dict[int, np.ndarray], union: Optional[PreparedGrid],
+                       union_footprints: Dict[int, Box], to_union: np.ndarray) -> Optional[Tuple[int, Placement]]:
+        """(member, its verification) of the first of `members` (grid -> metric transform into their frame) that,
+        placed by to_union (metric: their frame -> the union's), overlaps the union's members' footprints and
+        passes there alone the rules of a pair onto the union (passes_onto); None if none does."""
+        if union is None:
+            return None
+        boxes = list(union_footprints.values())
+        for k, t in members.items():
+            if not any(overlap_area(footprint(self.grids[k], to_union @ t), b) > 0.0 for b in boxes):
+                continue
+            c = self.passes_onto(self.prepared[k], union, to_union @ t)
+            if c is not None:
+                return k, c
+        return None
 
     def evict_at_join(self, small: Group, big: Group, m: PairMatch) -> bool:
         """Take out of the two groups the members that the other group's members, placed where the refused match m of
@@ -782,10 +791,14 @@ class Grower:
 
     def union_of(self, group: Group, placed: Dict[int, np.ndarray]) -> Optional[PreparedGrid]:
         """The prepared union of some of the group's members (member -> metric transform into its frame)."""
+        return self.union_map_of(group, placed).prepared()
+
+    def union_map_of(self, group: Group, placed: Dict[int, np.ndarray]) -> UnionMap:
+        """The union of some of the group's members (member -> metric transform into its frame)."""
         union = UnionMap(self.res, group.union.keypoints_of)
         for k, t in placed.items():
             union.add(k, group.union.grids[k], group.union.parts[k], t)
-        return union.prepared()
+        return union
 
     def passes_onto(self, part: PreparedGrid, union: PreparedGrid, to_union: np.ndarray) -> Optional[Placement]:
         """The verification of `part` placed onto `union` by `to_union` (metric: its frame -> the union's), if it
