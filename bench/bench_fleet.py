@@ -59,6 +59,14 @@ def descendants(root: int) -> List[int]:
     return out
 
 
+def _running(pid: int) -> bool:
+    """Whether the process is there and not a zombie (state Z, or X: dead)."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] not in ('Z', 'X')
+    except (OSError, IndexError):
+        return False
+
+
 NODES = ('map_merge', 'explore', 'fleet_sim')   # CPU sampled per node name (explore: every explorer together)
 Samples = Dict[str, List[Tuple[float, float]]]   # node name -> (wall s, CPU s) samples
 
@@ -103,10 +111,12 @@ def run_demo(robots: int, seed: int, out: Path, args: argparse.Namespace) -> Tup
                 for name, some in pids.items():
                     if name in ended:
                         continue
-                    try:
-                        samples[name].append((time.monotonic(), sum(proc_cpu_seconds(p) for p in some)))
-                    except (OSError, IndexError, ValueError):
-                        ended.add(name)     # a node has exited: keep the samples so far
+                    # proc_cpu_seconds counts a process that has gone as 0 s: a node whose process has gone (or
+                    # is a zombie) has exited, and keeps its samples so far
+                    if not all(_running(p) for p in some):
+                        ended.add(name)
+                        continue
+                    samples[name].append((time.monotonic(), sum(proc_cpu_seconds(p) for p in some)))
         except KeyboardInterrupt:
             os.killpg(proc.pid, signal.SIGINT)
             proc.wait(timeout=60)
