@@ -53,6 +53,7 @@ def _halves_met_by_few_walls(west: np.ndarray):
     world = np.zeros((200, 300), np.int8)
     world[0, :] = world[-1, :] = world[:, 0] = world[:, -1] = 100
     world[0:60, 100] = world[140:200, 220] = world[0:15, 175] = world[185:200, 175] = 100
+
     def part(c0, c1, r0=0, r1=200):
         data = np.full(world.shape, -1, np.int8)
         data[r0:r1, c0:c1] = world[r0:r1, c0:c1]
