@@ -24,9 +24,12 @@
 #                       map_merge's estimations (their exact inputs) into FILE.estimations/ (recording.py)
 #   --offline [NAME]    instead: merge the sample maps data/samples/NAME (default three_robots) offline and report
 #                       their placement error (no ROS master)
-# Run through scripts/env.sh (make demo does).
+# Runs itself through scripts/env.sh (the venv and the catkin devel space), as make demo does.
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# run directly, it would find neither the venv nor the catkin devel space (roslaunch: "demo.launch is neither a
+# launch file in package multirobot_map_merge ..."): through env.sh, as make demo runs it
+[ -n "${MMM_REPO:-}" ] || exec "$repo/scripts/env.sh" bash "${BASH_SOURCE[0]}" "$@"
 
 # The Makefile passes DEMO_ARGS as one word: split it.
 # shellcheck disable=SC2048,SC2086
