@@ -9,7 +9,7 @@ worktree that is removed at the end) and the working tree, for --rounds rounds; 
 lowest wall time, the median CPU time of the estimating process and of it with its worker processes, the maps
 placed, and the ratio of the medians. The maps default to the shared 30-map scenario; --large36 uses the generated
 36-map one (bench_merge.py --large36 makes it). --generated compares the two on each generated building (NAMES as
-bench_merge.py --generated takes them: none for the thirteen <kind>36, unseen, unseen2 or a comma-separated list;
+bench_merge.py --generated takes them: none for the thirteen <kind>36, unseen, unseen2, large or a comma-separated list;
 made into out/bench on first use), alternating within each building, and prints per building the two medians and
 their ratio, then each side's median and worst over the buildings: the time of one revision on this machine varies
 by up to 1.4 times from day to day, its ratio to a fixed revision far less.
@@ -133,7 +133,7 @@ def main(argv: List[str] = None) -> int:
                        help='the generated 36-map scenario in CACHE/large36 (default out/bench)')
     where.add_argument('--generated', nargs='?', const='buildings', metavar='NAMES',
                        help='each generated building in out/bench (NAMES as bench_merge.py --generated: none for the '
-                            'thirteen <kind>36, unseen, unseen2, or a comma-separated list)')
+                            'thirteen <kind>36, unseen, unseen2, large, or a comma-separated list)')
     args = ap.parse_args(argv)
     base_rev = subprocess.run(['git', '-C', str(REPO), 'rev-parse', '--short', args.base], capture_output=True,
                               text=True)

@@ -63,7 +63,7 @@ def left_out_lines(found, truth: dict, right: set) -> List[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--generated', default='buildings', metavar='NAMES',
-                    help='buildings (default), unseen, unseen2 or a comma-separated list, as bench_merge.py')
+                    help='buildings (default), unseen, unseen2, large or a comma-separated list, as bench_merge.py')
     ap.add_argument('--every', type=int, default=3, help='seed the estimation by every K-th mergeable map')
     ap.add_argument('--why', action='store_true',
                     help='under each building, why each seed short of the most leaves its maps out')
