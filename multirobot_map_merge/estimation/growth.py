@@ -689,7 +689,7 @@ class Grower:
         if len(small.members) < 2 or len(big.members) < 2:
             return False
         for group, other, to_other in ((small, big, small_to_big), (big, small, tf.inverse(small_to_big))):
-            found = self.member_passing(group.members, other.union.prepared(), other.union.footprints, to_other)
+            found = self.member_passing(group.members, other.union, to_other)
             if found is not None:
                 k, c = found
                 log.debug('groups %d and %d: member %d passes alone onto group %d where they meet (agreement '
@@ -698,18 +698,20 @@ class Grower:
                 return True
         return False
 
-    def member_passing(self, members: Dict[int, np.ndarray], union: Optional[PreparedGrid],
-                       union_footprints: Dict[int, Box], to_union: np.ndarray) -> Optional[Tuple[int, Placement]]:
+    def member_passing(self, members: Dict[int, np.ndarray], union: UnionMap, to_union: np.ndarray
+                       ) -> Optional[Tuple[int, Placement]]:
         """(member, its verification) of the first of `members` (grid -> metric transform into their frame) that,
-        placed by to_union (metric: their frame -> the union's), overlaps the union's members' footprints and
-        passes there alone the rules of a pair onto the union (passes_onto); None if none does."""
-        if union is None:
-            return None
-        boxes = list(union_footprints.values())
+        placed by to_union (metric: their frame -> the union's), overlaps the footprints of the union's members and
+        passes there alone the rules of a pair onto the union (passes_onto); None if none does. The union is
+        prepared only for a member that overlaps it."""
+        boxes = list(union.footprints.values())
         for k, t in members.items():
             if not any(overlap_area(footprint(self.grids[k], to_union @ t), b) > 0.0 for b in boxes):
                 continue
-            c = self.passes_onto(self.prepared[k], union, to_union @ t)
+            prepared = union.prepared()
+            if prepared is None:
+                return None
+            c = self.passes_onto(self.prepared[k], prepared, to_union @ t)
             if c is not None:
                 return k, c
         return None

@@ -77,12 +77,10 @@ def _held_where_met(grower, group, parts: List[Set[int]]) -> List[Set[int]]:
 
 def _meet(grower, group, a: Set[int], b: Set[int]) -> bool:
     """Whether a member of part a or of part b of `group` passes alone onto the union of the other part."""
-    for one, other in ((b, a), (a, b)):
-        union = grower.union_map_of(group, {k: group.members[k] for k in other})
-        if grower.member_passing({k: group.members[k] for k in one}, union.prepared(), union.footprints,
-                                 np.eye(3)) is not None:
-            return True
-    return False
+    return any(grower.member_passing({k: group.members[k] for k in one},
+                                     grower.union_map_of(group, {k: group.members[k] for k in other}),
+                                     np.eye(3)) is not None
+               for one, other in ((b, a), (a, b)))
 
 
 def split(grower, group) -> list:
