@@ -20,7 +20,9 @@ grid's keypoints are detected in the first match that needs them); the CPU of th
 and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted,
 or the reason of the refusal) and whether a correlation search ran; and the matches made again: a grid onto a grid
 or a group (by its seed) that it was matched onto before in the estimation in the same way (by descriptors alone, or
-with a correlation search), the group's union grown since.
+with a correlation search), the group's union grown since; and for a generated building (a truth.json beside the maps)
+the CPU of the matches of its broken maps, of the maps placed, of the mergeable maps left out and of the maps that
+are not mergeable (by the grid matched, group matches aside).
 With --cores it prints only the CPU of a serial estimation and of one with its defaults, neither under the profiler:
 the estimating process's and its worker processes', their ratio to the serial CPU (what the processes add: the grids
 written and read, the workers' own caches, the threads of the estimating process), and the cores the estimation kept
@@ -73,7 +75,7 @@ KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out',
 # thread; profile: the file cProfile writes to ('' for none); kinds: the CPU of each kind of match printed; prints
 # the wall time in s
 ONE = '''
-import cProfile, collections, glob, sys, time
+import cProfile, collections, glob, os, sys, time
 sys.path.insert(0, {root!r})
 serial, profile, kinds, cores = {serial!r}, {profile!r}, {kinds!r}, {cores!r}
 import cv2
@@ -105,6 +107,7 @@ if kinds:
     searching = [0, 0.0]   # correlation searches of the match being made, their CPU s
     seen = set()   # (grid, grid or group seed, searched) of the matches so far
     again = collections.defaultdict(lambda: [0, 0, 0.0])   # searched -> matches made again, accepted, CPU s
+    of_grid = collections.defaultdict(lambda: [0, 0.0])   # grid matched (not a group's union) -> matches, CPU s
     correlate = pair.correlate_candidates
     def correlate_timed(*args, **options):
         started = time.process_time()
@@ -129,6 +132,9 @@ if kinds:
         took = time.process_time() - started
         # the verdict: accepted, or the refusal's reason without its figures
         verdict = 'accepted' if m.accepted else re.sub(r'[-+]?[0-9][0-9.]*', '#', m.reason or '').split(':')[0][:38]
+        if not options.get('between_groups'):
+            of_grid[i][0] += 1
+            of_grid[i][1] += took
         row = verdicts[(kind, verdict, searching[0] > 0)]
         row[0] += 1
         row[1] += took
@@ -148,7 +154,7 @@ wall, cpu = time.perf_counter(), time.process_time()
 if profile:
     cProfile.run('estimator.estimate(grids, settings)', profile)
 else:
-    estimator.estimate(grids, settings)
+    result = estimator.estimate(grids, settings)
 if kinds:
     cpu = time.process_time() - cpu
     spent = collections.defaultdict(lambda: [0, 0, 0.0])   # kind -> matches, accepted, CPU s
@@ -172,6 +178,24 @@ if kinds:
     for searched, (n, accepted, seconds) in sorted(again.items()):
         print(f'  made again onto the same grid or group, {{"searched" if searched else "descriptors only":16s}} '
               f'{{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU {{100 * seconds / cpu:5.1f}} %')
+    truth_file = os.path.join({maps!r}, 'truth.json')
+    if os.path.exists(truth_file):
+        # a generated building: the matches of its broken maps (never placed right), of the maps placed and of the
+        # mergeable ones left out, by the grid matched (group matches aside)
+        import json
+        truth = {{m['file']: m for m in json.load(open(truth_file))['maps']}}
+        names = [os.path.basename(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
+        classes = collections.defaultdict(lambda: [0, 0, 0.0])   # class -> grids, matches, CPU s
+        for k, name in enumerate(names):
+            m = truth.get(name, {{}})
+            label = ('broken maps' if m.get('broken') else 'maps placed' if result.transforms[k] is not None
+                     else 'mergeable maps left out' if m.get('mergeable', True) else 'maps not mergeable')
+            classes[label][0] += 1
+            classes[label][1] += of_grid[k][0]
+            classes[label][2] += of_grid[k][1]
+        for label, (n, matches, seconds) in sorted(classes.items(), key=lambda kv: -kv[1][2]):
+            print(f'  the matches of the {{n}} {{label}} (the truth): {{matches}} matches, {{seconds:.2f}} s CPU '
+                  f'{{100 * seconds / cpu:5.1f}} %')
     print('  by verdict (the 12 costliest; searched: a correlation search over all angles ran, its CPU in brackets):')
     for (kind, verdict, searched), (n, seconds, search) in sorted(verdicts.items(), key=lambda kv: -kv[1][1])[:12]:
         what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
