@@ -399,9 +399,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
     `reverse`, its maps given in reverse order; with `shuffle`, in an order drawn with that seed), scored; one row
     each (also appended to `out_rows`), the median and worst estimation, then why each mergeable map left out or
     placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
-    and the final union)."""
+    and the final union), and in a merge with maps placed wrong, which healthy members contradict each other."""
     import make_sample_maps
-    from merge_diagnosis import cause_counts, diagnose, replay, verdict_lines
+    from merge_diagnosis import cause_counts, contradicting_members, diagnose, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
     replayed: Dict[str, int] = {}
     for name in names:
@@ -430,6 +430,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         verdicts = diagnose(log.read_text(), scored, truth)
         verdicts_all += verdicts
         notes += verdict_lines(name, verdicts, [m['file'] for m in truth['maps']])
+        if scored['wrong']:
+            # a group placed by a wrong link: where it meets the rest, its members contradict those there
+            notes += contradicting_members(folder, truth, result_dir)
         if again and verdicts:
             print(f'... matching the {len(verdicts)} maps of {name} not placed right again', file=sys.stderr,
                   flush=True)

@@ -2,6 +2,8 @@
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'bench'))
 from merge_diagnosis import cause_counts, diagnose  # noqa: E402
 
@@ -104,3 +106,36 @@ def test_the_table_of_several_orders_or_seeds_has_a_column_each_and_their_totals
     lines = variants_table(['a36', 'b36'], per_variant)
     assert lines[0] == '| building | order 3: right / mergeable, false | order 4: right / mergeable, false |'
     assert lines[2:] == ['| a36 | 27/27, 0 | 25/27, 0 |', '| b36 | 17/27, 9 | - |', '| all | 44/54, 9 | 25/27, 0 |']
+
+
+def test_healthy_members_that_contradict_each_other_in_the_merge_are_named(repo_root, tmp_path):
+    """bench_merge.py --generated names, for a merge with maps placed wrong, the healthy members that contradict each
+    other as pairs: two healthy maps of a warehouse (test/data/warehouse_rack_slide) at their true places are not
+    named; with one turned a quarter turn about the middle of its map, both are."""
+    import json
+    import math
+    from merge_diagnosis import contradicting_members
+    from multirobot_map_merge import transforms as tf
+    folder = repo_root / 'test' / 'data' / 'warehouse_rack_slide'
+    truth = json.loads((folder / 'truth.json').read_text())
+    pose = {m['file']: tf.rigid(*m['pose']) for m in truth['maps']}
+    true_robot = tf.inverse(pose['other.yaml']) @ pose['robot.yaml']   # robot's map frame -> other's
+
+    def merged(robot: np.ndarray) -> list:
+        maps = [{'file': str(folder / name), 'included': True,
+                 'transform': {'x': float(t[0, 2]), 'y': float(t[1, 2]), 'yaw': math.atan2(t[1, 0], t[0, 0])}}
+                for name, t in (('other.yaml', np.eye(3)), ('robot.yaml', robot))]
+        out = tmp_path / 'result'
+        out.mkdir(exist_ok=True)
+        (out / 'result.json').write_text(json.dumps({'maps': maps}))
+        return contradicting_members(folder, truth, out)
+
+    assert merged(true_robot) == []
+    from multirobot_map_merge.mapio import load_map
+    robot = load_map(str(folder / 'robot.yaml'))
+    rows, cols = np.nonzero(robot.data >= 0)   # its known cells: the turn about their middle keeps the overlap
+    centre = true_robot @ robot.cell_to_map() @ np.array([cols.mean(), rows.mean(), 1.0])
+    turn = tf.translation(centre[0], centre[1]) @ tf.rigid(0.0, 0.0, math.pi / 2) \
+        @ tf.translation(-centre[0], -centre[1])
+    lines = merged(turn @ true_robot)
+    assert len(lines) == 1 and 'contradicts' in lines[0], lines
