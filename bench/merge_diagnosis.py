@@ -255,14 +255,12 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
 
 def contradicting_members(folder: Path, truth: dict, result_dir: Path) -> List[str]:
     """Lines naming the healthy members of the merge merge_maps wrote (result.json) that contradict other healthy
-    members as pairs (as eviction.judge_members judges a pair: enough in common, and agreeing too little or
-    contradicting well inside both maps' views), the member with the most such partners first."""
+    members as pairs (eviction.contradicting_pairs), the member with the most such partners first."""
     from multirobot_map_merge import transforms as tf
-    from multirobot_map_merge.estimation.eviction import verified_against
+    from multirobot_map_merge.estimation.eviction import contradicting_pairs
     from multirobot_map_merge.estimation.features import prepare
     from multirobot_map_merge.estimation.settings import EstimationSettings
-    from multirobot_map_merge.estimation.union import footprint, overlap_area
-    from multirobot_map_merge.estimation.verify import too_contradicted
+    from multirobot_map_merge.estimation.union import footprint
     from multirobot_map_merge.mapio import load_map
     s = EstimationSettings()
     broken = {m['file'] for m in truth['maps'] if m.get('broken')}
@@ -275,19 +273,12 @@ def contradicting_members(folder: Path, truth: dict, result_dir: Path) -> List[s
     names = sorted(placed)
     grids = [load_map(str(folder / name)) for name in names]
     res = max(min((g.resolution for g in grids), default=s.min_work_resolution), s.min_work_resolution)
-    prepared = [prepare(g, res, None) for g in grids]
-    at = [placed[name] for name in names]
-    boxes = [footprint(g, t) for g, t in zip(grids, at)]
+    members = {k: placed[name] for k, name in enumerate(names)}
     partners: Dict[int, List[int]] = {}
-    for a in range(len(names)):
-        for b in range(a + 1, len(names)):
-            if overlap_area(boxes[a], boxes[b]) < s.min_overlap_m2 or prepared[a] is None or prepared[b] is None:
-                continue
-            c = verified_against(a, at[a], b, at[b], prepared, s)
-            if c.overlap_m2 >= s.min_overlap_m2 and c.support + c.conflicts >= s.min_support \
-                    and (c.agreement < s.min_agreement or too_contradicted(c, s)):
-                partners.setdefault(a, []).append(b)
-                partners.setdefault(b, []).append(a)
+    for a, b in contradicting_pairs(members, {k: footprint(grids[k], t) for k, t in members.items()},
+                                    [prepare(g, res, None) for g in grids], s):
+        partners.setdefault(a, []).append(b)
+        partners.setdefault(b, []).append(a)
     lines, told = [], set()
     for a in sorted(partners, key=lambda k: -len(partners[k])):
         rest = [b for b in partners[a] if (a, b) not in told]

@@ -598,3 +598,37 @@ def test_a_member_taken_out_joins_again_in_place_of_a_map_that_joined_on_weaker_
         grower.left_out_joined[3] = evidence   # map 3 joined by search_left_out, agreeing with 1 member on 150 walls
         grower.search_left_out(group, readmit=True)
         assert sorted(group.members) == members
+
+
+
+def test_a_join_of_a_round_is_judged_again_on_the_union_grown_by_the_joins_before_it():
+    """Grower.strict (an estimation afresh made again where its merge holds members that contradict each other): a
+    round's matches are made onto the union as it stood before the round, and one joins only if it still passes the
+    rules of a pair on the union the joins before it grew. The west of the hall seeds a group; maps 1 and 2 each see
+    the west and the middle and are accepted onto the seed alone (support 2000 and 1500), but map 2 has a wall across
+    the middle where map 1 saw free floor (a map placed at an alias so contradicts one that joined before it)."""
+    from multirobot_map_merge.estimation.growth import Grower
+    world = stubbed_building()
+    grids = [seen(world, 0, 120), seen(world, 0, 200), seen(world, 0, 200)]
+    grids[2].data[40:160, 160] = 100
+    prepared = [prepare(g, RES, 'akaze') for g in grids]
+    grower = Grower(grids, prepared, RES, EstimationSettings(processes=False), _Loop(), None, None)
+    grower._waits = lambda m, members: False
+    grower.strict = True
+    group = grower.group(0)
+    results = [PairMatch(k, 0, accepted=True, best=Placement(np.eye(3), support=support, agreement=1.0))
+               for k, support in ((1, 2000), (2, 1500))]
+    for m in results:
+        m.transform_m = np.eye(3)
+    assert grower.passes_onto(prepared[2], group.union.prepared(), np.eye(3)) is not None   # onto the seed alone
+    unplaced = [1, 2]
+    assert grower._admit(group, unplaced, results)
+    assert sorted(group.members) == [0, 1] and unplaced == [2]
+    assert grower.refused[2].reason.startswith('waits')
+
+
+def test_the_members_that_contradict_each_other_are_covered_greedily():
+    from multirobot_map_merge.estimation.eviction import cover
+    assert cover([]) == set()
+    assert cover([(6, 8), (6, 17), (6, 18), (1, 12)]) == {6, 1}
+    assert cover([(2, 3), (3, 4), (4, 5)]) == {3, 4}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from typing import TYPE_CHECKING, Dict, List, Mapping, Optional, Sequence
+from typing import TYPE_CHECKING, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -214,3 +214,34 @@ def singled_out_together(together: Mapping[frozenset, list]) -> List[frozenset]:
     contradicts the same members, and only those, is the evidence that they are the ones that are wrong."""
     return sorted((members for members, voters in together.items()
                    if len({k for k, _ in voters}) >= TOGETHER_VOTERS), key=lambda members: -len(together[members]))
+
+
+def contradicting_pairs(members: Mapping[int, np.ndarray], footprints: Mapping,
+                        prepared: Sequence[Optional[PreparedGrid]], s: 'EstimationSettings',
+                        verified: Optional[Dict[tuple, Placement]] = None) -> List[Tuple[int, int]]:
+    """The pairs of members (grid -> metric transform into the group's frame) that contradict each other as pairs:
+    enough in common to judge (a pair's common area and walls), and agreeing too little or contradicting well inside
+    both maps' views (as judge_members counts a member contradicting)."""
+    ks = sorted(k for k in members if prepared[k] is not None)
+    out = []
+    for n, a in enumerate(ks):
+        for b in ks[n + 1:]:
+            if overlap_area(footprints.get(a), footprints.get(b)) < s.min_overlap_m2:
+                continue
+            c = verified_against(a, members[a], b, members[b], prepared, s, verified)
+            if c.overlap_m2 >= s.min_overlap_m2 and c.support + c.conflicts >= s.min_support \
+                    and (c.agreement < s.min_agreement or too_contradicted(c, s)):
+                out.append((a, b))
+    return out
+
+
+def cover(pairs: Sequence[Tuple[int, int]]) -> set:
+    """Members that take part in every one of `pairs` (greedily: the one in most of those left first, the lowest on a
+    tie): a merge less these holds no two that contradict each other."""
+    left, out = list(pairs), set()
+    while left:
+        counts = Counter(k for pair in left for k in pair)
+        k = min(counts, key=lambda k: (-counts[k], k))
+        out.add(k)
+        left = [pair for pair in left if k not in pair]
+    return out

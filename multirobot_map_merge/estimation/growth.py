@@ -168,6 +168,8 @@ class Grower:
         # (grid, group key) of the searches that failed in this estimation: searched again only by search_again
         self.failed_searches: set = set()
         self.again = False
+        # each join of a round judged again on the union grown by the joins before it (estimator._consistent_of)
+        self.strict = False
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
         self.budget = budget if budget is not None else SearchBudget()
         self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
@@ -360,6 +362,14 @@ class Grower:
         for m in sorted(results, key=lambda m: -m.weight):
             if m.accepted and (self._waits(m, matched_onto) or self._searched_onto_little(m, group)):
                 continue
+            if m.accepted and added and self.strict:
+                # made onto the union as it stood before the round: judged again on the union the joins before it
+                # grew (a map at an alias can agree wall for wall with the one and be contradicted by the other)
+                again = self._placed_again(m, group.union.prepared())
+                if again is None:
+                    self._wait(m, 'waits: the maps that joined before it in this round contradict it there')
+                    continue
+                m = again
             if m.accepted:
                 self._join(group, m)
                 unplaced.remove(m.i)
@@ -486,6 +496,8 @@ class Grower:
             self.grow(group, unplaced)
         finally:
             self.again = False
+        # each join of a round judged again on the union grown by the joins before it (estimator._consistent_of)
+        self.strict = False
 
     def confirm_searches(self, group: Group) -> None:
         """Judge the grids a search placed again, as they are, against the other members near them (tracking's
