@@ -496,8 +496,6 @@ class Grower:
             self.grow(group, unplaced)
         finally:
             self.again = False
-        # each join of a round judged again on the union grown by the joins before it (estimator._consistent_of)
-        self.strict = False
 
     def confirm_searches(self, group: Group) -> None:
         """Judge the grids a search placed again, as they are, against the other members near them (tracking's
