@@ -632,3 +632,55 @@ def test_the_members_that_contradict_each_other_are_covered_greedily():
     assert cover([]) == set()
     assert cover([(6, 8), (6, 17), (6, 18), (1, 12)]) == {6, 1}
     assert cover([(2, 3), (3, 4), (4, 5)]) == {3, 4}
+
+
+def test_a_round_notes_the_place_of_each_join_in_it():
+    """Grower.admitted: which joins of a round came before which (the audit of an estimation afresh asks whether a
+    judgement of each join on the union grown by the joins before it would change anything)."""
+    from multirobot_map_merge.estimation.growth import Grower
+    world = stubbed_building()
+    grids = [seen(world, 0, 120), seen(world, 0, 200), seen(world, 0, 200)]
+    prepared = [prepare(g, RES, 'akaze') for g in grids]
+    grower = Grower(grids, prepared, RES, EstimationSettings(processes=False), _Loop(), None, None)
+    grower._waits = lambda m, members: False
+    group = grower.group(0)
+    results = [PairMatch(k, 0, accepted=True, best=Placement(np.eye(3), support=support, agreement=1.0))
+               for k, support in ((2, 1500), (1, 2000))]
+    for m in results:
+        m.transform_m = np.eye(3)
+    assert grower._admit(group, [1, 2], results)
+    (round_1, first, key_1), (round_2, second, key_2) = grower.admitted[1], grower.admitted[2]
+    assert (round_1, key_1) == (round_2, key_2) == (round_1, group.key)
+    assert (first, second) == (0, 1)   # the stronger match joins first
+
+
+def test_the_members_a_strict_round_would_make_wait_follow_the_order_of_the_joins():
+    from multirobot_map_merge.estimation.eviction import waiting_in_round
+    # map 6 joined first in round 2, three maps at an alias after it; map 17 joined in another round
+    admitted = {6: (2, 0, 1), 8: (2, 1, 1), 18: (2, 2, 1), 19: (2, 3, 1), 17: (3, 0, 1)}
+    assert waiting_in_round([(6, 8), (6, 18), (6, 19), (6, 17)], admitted) == {8, 18, 19}
+    # a broken map 23 after map 17 waits; map 9 after it, which only 23 contradicts, then does not
+    admitted = {17: (1, 1, 1), 23: (1, 17, 1), 9: (1, 18, 1)}
+    assert waiting_in_round([(9, 23), (17, 23)], admitted) == {23}
+    # members that joined otherwise (the seed, a group's join) never wait
+    assert waiting_in_round([(1, 2)], {2: (1, 0, 1)}) == set()
+
+
+def test_a_member_is_singled_out_by_contradicting_more_members_than_any_it_contradicts():
+    from multirobot_map_merge.estimation.eviction import singled_out
+    pairs = [(9, 23), (17, 23)]
+    assert singled_out(23, pairs) and not singled_out(9, pairs)
+    assert not singled_out(16, [(16, 35)]) and not singled_out(35, [(16, 35)])
+    pairs = [(3, 5), (3, 9), (3, 20), (6, 24)]
+    assert singled_out(3, pairs) and not singled_out(20, pairs) and not singled_out(24, pairs)
+
+
+def test_a_member_passed_beside_members_it_contradicts_is_told_from_one_judged_without_them():
+    from multirobot_map_merge.estimation.eviction import passed_beside
+    # broken map 16 joined group 1 in round 5 after maps 20 (round 4) and 19 (round 5, before it) had
+    admitted = {20: (4, 0, 1), 19: (5, 0, 1), 16: (5, 2, 1)}
+    assert passed_beside(16, [(16, 19), (16, 20)], admitted)
+    assert not passed_beside(16, [(16, 19)], admitted)   # its round's union did not hold map 19
+    # a member of another group, absorbed later, was not in the union it joined
+    assert not passed_beside(16, [(16, 20)], {20: (4, 0, 2), 16: (5, 2, 1)})
+    assert not passed_beside(16, [(16, 20)], {20: (4, 0, 1)})   # joined otherwise

@@ -245,3 +245,33 @@ def cover(pairs: Sequence[Tuple[int, int]]) -> set:
         out.add(k)
         left = [pair for pair in left if k not in pair]
     return out
+
+
+def waiting_in_round(pairs: Sequence[Tuple[int, int]], admitted: Mapping[int, Tuple[int, int, int]]) -> set:
+    """The members of `pairs` that a member which joined before them in the same round contradicts (and which did
+    not wait itself), taken in the order they joined: those a judgement of each join on the union grown by the joins
+    before it in its round (Grower.strict) would make wait, by the pairs alone. `admitted`: grid -> (round, place
+    in it, group) of its join (Grower.admitted)."""
+    against: Dict[int, set] = {}
+    for a, b in pairs:
+        against.setdefault(a, set()).add(b)
+        against.setdefault(b, set()).add(a)
+    waiting: set = set()
+    for k in sorted((k for k in against if k in admitted), key=lambda k: admitted[k]):
+        if any(j in admitted and j not in waiting and admitted[j][0] == admitted[k][0]
+               and admitted[j][1] < admitted[k][1] for j in against[k]):
+            waiting.add(k)
+    return waiting
+
+
+def singled_out(k: int, pairs: Sequence[Tuple[int, int]]) -> bool:
+    """Whether member k takes part in more of `pairs` than each member it contradicts in them."""
+    counts = Counter(x for pair in pairs for x in pair)
+    return all(counts[k] > counts[b if a == k else a] for a, b in pairs if k in (a, b))
+
+
+def passed_beside(k: int, pairs: Sequence[Tuple[int, int]], admitted: Mapping[int, Tuple[int, int, int]]) -> bool:
+    """Whether member k joined its group in a round after a member it contradicts in `pairs` had joined that group
+    (the union k was matched onto held it: the union's check passed k beside it)."""
+    return k in admitted and any(j in admitted and admitted[j][2] == admitted[k][2] and admitted[j][0] < admitted[k][0]
+                                 for a, b in pairs if k in (a, b) for j in (b if a == k else a,))

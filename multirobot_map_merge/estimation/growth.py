@@ -170,6 +170,10 @@ class Grower:
         self.again = False
         # each join of a round judged again on the union grown by the joins before it (estimator._consistent_of)
         self.strict = False
+        # grid -> (round, place in it, group key) of its join by a round of matches onto a union (_admit), while it
+        # stays
+        self.admitted: Dict[int, Tuple[int, int, int]] = {}
+        self.rounds = 0
         self.search_seconds = 0.0   # spent in correlation searches (settings.search_budget_s)
         self.budget = budget if budget is not None else SearchBudget()
         self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
@@ -359,6 +363,8 @@ class Grower:
     def _admit(self, group: Group, unplaced: List[int], results: List[PairMatch]) -> bool:
         added = False
         matched_onto = set(group.members)   # however many of the grids join it now
+        self.rounds += 1
+        place = 0
         for m in sorted(results, key=lambda m: -m.weight):
             if m.accepted and (self._waits(m, matched_onto) or self._searched_onto_little(m, group)):
                 continue
@@ -372,6 +378,8 @@ class Grower:
                 m = again
             if m.accepted:
                 self._join(group, m)
+                self.admitted[m.i] = (self.rounds, place, group.key)
+                place += 1
                 unplaced.remove(m.i)
                 added = True
             else:
@@ -1024,6 +1032,7 @@ class Grower:
         else:
             self.placed_onto_few.discard(m.i)
         group.join(m.i, self.grids[m.i], self.prepared[m.i], m)
+        self.admitted.pop(m.i, None)
         self.refused.pop(m.i, None)
         self._forget_search(m.i, group)
         self.settle(1)
