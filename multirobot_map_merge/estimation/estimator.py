@@ -33,6 +33,7 @@ from .confirmation import (anchor_on_published, held_tracked, hold_new, keep_sta
 from .eviction import contradicting_pairs, cover, passed_beside, singled_out, waiting_in_round
 from .features import FeatureCache, PreparedGrid, content_key
 from .growth import Group, Grower, Progress, SearchBudget
+from .match_memo import MatchMemo
 from .memory import EstimationMemory
 from .pair import PairMatch
 from .relax import FINAL, TRACKING, Limits, overlapping_pairs, relax, walls_fitting
@@ -443,7 +444,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
               preferred_reference: Optional[int], previous: Optional[Sequence[Optional[np.ndarray]]],
               progress: Optional[Progress], memory: Optional[EstimationMemory], names: Optional[Sequence],
               contents: Optional[Sequence[Optional[str]]], budget: Optional[SearchBudget] = None,
-              strict: bool = False) -> Estimate:
+              strict: bool = False, memo: Optional[MatchMemo] = None) -> Estimate:
     settings.validate()
     progress = progress or progress_of(settings)   # merge_maps attaches its terminal display to the settings
     t0 = time.perf_counter()
@@ -451,7 +452,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
     res = working_resolution(grids, settings)
     usable = [g if g is not None and not g.is_empty() else None for g in grids]
     transforms: List[Optional[np.ndarray]] = [None] * len(grids)
-    with ThreadPoolExecutor(max_workers=settings.threads) as pool, ParallelMatcher(settings, pool) as matcher:
+    if memo is None and settings.evict and settings.search_left_out and previous is None:
+        memo = MatchMemo()   # an estimation afresh of final maps may be made again (_consistent_of)
+    with ThreadPoolExecutor(max_workers=settings.threads) as pool, ParallelMatcher(settings, pool, memo) as matcher:
         prepared = list(pool.map(lambda g: cache.get(g, res, settings.feature) if g is not None else None, usable))
         present = [k for k, p in enumerate(prepared) if p is not None]
         if not present:
@@ -547,7 +550,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         waiting = waiting_in_round(found, grower.admitted)
         if any(not singled_out(k, found) or passed_beside(k, found, grower.admitted) for k in waiting):
             result = _consistent_of(result, len(chosen.members) - len(cover(found)), grids, settings, cache,
-                                    preferred_reference, previous, progress, names, contents, usable, prepared)
+                                    preferred_reference, previous, progress, names, contents, usable, prepared, memo)
             result.seconds = time.perf_counter() - t0
         elif found:
             log.debug('the merge holds members that contradict each other, %s: not made again',
@@ -561,7 +564,8 @@ def _consistent_of(first: Estimate, consistent: int, grids: Sequence[Optional[Gr
                    cache: Optional[FeatureCache], preferred_reference: Optional[int],
                    previous: Optional[Sequence[Optional[np.ndarray]]], progress: Optional[Progress],
                    names: Optional[Sequence], contents: Optional[Sequence[Optional[str]]],
-                   usable: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]]) -> Estimate:
+                   usable: Sequence[Optional[Grid]], prepared: Sequence[Optional[PreparedGrid]],
+                   memo: Optional[MatchMemo] = None) -> Estimate:
     """`first`, an estimation afresh whose merge holds members that contradict each other as pairs (`consistent`:
     its members less the fewest that take part in every such pair, eviction.cover), or the same estimation made
     again with each join of a round judged on the union grown by the joins before it (Grower.strict), whichever
@@ -585,11 +589,12 @@ def _consistent_of(first: Estimate, consistent: int, grids: Sequence[Optional[Gr
     again. courtyard36 seeded by map 11: broken map_16 joined a union holding four members it contradicts, and map_19
     of its round contradicts it too; made again, it waits, and maps 8, 15 and 18 join right (24 -> 26 of 27)."""
     again = _estimate(grids, settings, cache, preferred_reference, previous, progress, None, names, contents, None,
-                      strict=True)
+                      strict=True, memo=memo)
     placed = {k: t for k, t in enumerate(again.transforms) if t is not None}
     found = contradicting_pairs(placed, {k: footprint(usable[k], t) for k, t in placed.items()}, prepared, settings)
     better = len(placed) - len(cover(found)) > consistent
     log.debug('the merge holds members that contradict each other (%d consistent): made again, each join of a round '
-              'judged on the union grown by the joins before it, %d of %d placed consistent: %s', consistent,
-              len(placed) - len(cover(found)), len(placed), 'kept' if better else 'not kept')
+              'judged on the union grown by the joins before it (%d matches as the first made them), %d of %d placed '
+              'consistent: %s', consistent, memo.hits if memo is not None else 0, len(placed) - len(cover(found)),
+              len(placed), 'kept' if better else 'not kept')
     return again if better else first

@@ -138,6 +138,9 @@ class UnionMap:
             # node's growth asks it of every estimation, whether or not a grid is matched onto it then)
             self._prepared = prepare(union, self.resolution, None, lazy=True) if union is not None else None
             if self._prepared is not None:
+                # what it is made of, for a match kept to be known again (match_memo.py)
+                self._prepared.derived['signature'] = ('union', self.resolution, tuple(
+                    (k, id(self.parts[k]), self.members[k].tobytes()) for k in order))
                 (self._prepared.keypoints, self._prepared.descriptors,
                  self._prepared.descriptor_parts) = pooled_keypoints(
                     [(*self.keypoints_of(k, self.parts[k]), self.members[k]) for k in order],

@@ -44,6 +44,7 @@ import numpy as np
 
 from ..throttle import Throttle
 from .features import PreparedGrid
+from .match_memo import MatchMemo
 from .neighbours import NeighbourCache
 from .pair import PairMatch, match_pair
 from .settings import EstimationSettings
@@ -286,8 +287,9 @@ class ParallelMatcher:
     estimation's thread pool. A context manager: its files are removed at its end (or once it is collected, for one
     used without `with`)."""
 
-    def __init__(self, settings: EstimationSettings, threads: Executor) -> None:
+    def __init__(self, settings: EstimationSettings, threads: Executor, memo: Optional[MatchMemo] = None) -> None:
         self.s, self.threads = settings, threads
+        self.memo = memo   # the matches kept for an estimation made again (match_memo.py)
         self.neighbours = NeighbourCache()   # the descriptor distances of the matches made in this process
         self.processes = settings.processes and settings.threads > 1
         if self.processes:
@@ -325,6 +327,21 @@ class ParallelMatcher:
 
     def match_all(self, calls: Sequence[MatchCall]) -> List[PairMatch]:
         """The matches of `calls`, in their order."""
+        if self.memo is None:
+            return self._match_all(calls)
+        found = [self.memo.get(c.i, c.j, c.pi, c.pj, c.options) for c in calls]
+        made = iter(self._match_all([c for c, m in zip(calls, found) if m is None]))
+        out = []
+        for c, m in zip(calls, found):
+            if m is None:
+                m = next(made)
+                self.memo.put(c.i, c.j, c.pi, c.pj, c.options, m)
+            out.append(m)
+        return out
+
+    def _match_all(self, calls: Sequence[MatchCall]) -> List[PairMatch]:
+        if not calls:
+            return []
         if len(calls) > 1 and self.processes:
             try:
                 executor = _POOL.get(self.s.threads)
@@ -334,7 +351,7 @@ class ParallelMatcher:
                 _POOL.broken(executor)
             except OSError as e:
                 self._without_processes(e)
-        return list(self.threads.map(self.match_here, calls))
+        return list(self.threads.map(self._match_here, calls))
 
     def _without_processes(self, e: OSError) -> None:
         """The rest of this estimation's matches run on threads: processes cannot start (no POSIX semaphores, as
@@ -346,6 +363,15 @@ class ParallelMatcher:
 
     def match_here(self, call: MatchCall) -> PairMatch:
         """One match, in this process."""
+        if self.memo is None:
+            return self._match_here(call)
+        m = self.memo.get(call.i, call.j, call.pi, call.pj, call.options)
+        if m is None:
+            m = self._match_here(call)
+            self.memo.put(call.i, call.j, call.pi, call.pj, call.options, m)
+        return m
+
+    def _match_here(self, call: MatchCall) -> PairMatch:
         return match_pair(call.i, call.j, call.pi, call.pj, self.s, neighbours=self.neighbours, **call.options)
 
     def _on_processes(self, executor: ProcessPoolExecutor, calls: Sequence[MatchCall]) -> List[PairMatch]:
