@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import threading
-from typing import Dict, Hashable, Optional, Tuple
+from typing import Dict, Hashable, Optional
 
 from .features import PreparedGrid
 from .pair import PairMatch
