@@ -257,6 +257,7 @@ def contradicting_members(folder: Path, truth: dict, result_dir: Path) -> List[s
     """Lines naming the healthy members of the merge merge_maps wrote (result.json) that contradict other healthy
     members as pairs (eviction.contradicting_pairs), the member with the most such partners first."""
     from multirobot_map_merge import transforms as tf
+    from multirobot_map_merge.estimation.estimator import working_resolution
     from multirobot_map_merge.estimation.eviction import contradicting_pairs
     from multirobot_map_merge.estimation.features import prepare
     from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -272,7 +273,7 @@ def contradicting_members(folder: Path, truth: dict, result_dir: Path) -> List[s
             placed[name] = tf.rigid(t['x'], t['y'], t['yaw'])
     names = sorted(placed)
     grids = [load_map(str(folder / name)) for name in names]
-    res = max(min((g.resolution for g in grids), default=s.min_work_resolution), s.min_work_resolution)
+    res = working_resolution(grids, s)
     members = {k: placed[name] for k, name in enumerate(names)}
     partners: Dict[int, List[int]] = {}
     for a, b in contradicting_pairs(members, {k: footprint(grids[k], t) for k, t in members.items()},
