@@ -17,9 +17,11 @@ import time
 import types
 from concurrent.futures import ThreadPoolExecutor
 
+import cv2
 import numpy as np
+import pytest
 
-from multirobot_map_merge.estimation import workers
+from multirobot_map_merge.estimation import search, workers
 from multirobot_map_merge.estimation.estimator import estimate
 from multirobot_map_merge.estimation.features import prepare
 from multirobot_map_merge.estimation.neighbours import NeighbourCache
@@ -77,6 +79,84 @@ def test_a_worker_keeps_distances_by_content(repo_root):
     again = kept.nearest(a.copy(), b.copy())   # copies, as each file read gives them
     assert again[0] is first[0]
     np.testing.assert_array_equal(first[0], NeighbourCache().nearest(a, b)[0])
+
+
+def test_the_processes_of_an_estimation_share_descriptor_distances_through_its_folder(repo_root, tmp_path,
+                                                                                     monkeypatch):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)[:2]]
+    a, b = grids[0].descriptors, grids[1].descriptors
+    first = workers.ContentNeighbourCache(str(tmp_path)).nearest(a, b)
+    computed = []
+    batch_distance = cv2.batchDistance
+    monkeypatch.setattr(cv2, 'batchDistance', lambda *args, **kw: computed.append(1) or batch_distance(*args, **kw))
+    # another worker, with copies of the arrays as its files give them, and the estimating process (by their ids)
+    for other, (q, t) in ((workers.ContentNeighbourCache(str(tmp_path)), (a.copy(), b.copy())),
+                          (workers.SharedNeighbourCache(str(tmp_path)), (a, b))):
+        again = other.nearest(q, t)
+        assert not computed
+        for x, y in zip(again, first):
+            np.testing.assert_array_equal(x, y)
+    # not the distances of other arrays, nor without a folder
+    workers.ContentNeighbourCache(str(tmp_path)).nearest(b, a)
+    workers.ContentNeighbourCache().nearest(a, b)
+    assert len(computed) == 2
+
+
+def test_what_a_search_derives_from_a_grid_is_derived_once_among_the_processes(repo_root, tmp_path, monkeypatch):
+    path = str(tmp_path / '1.pickle')
+    with open(path, 'wb') as f:
+        pickle.dump(prepare(_maps(repo_root)[0], 0.05, 'akaze'), f)
+
+    def loaded():
+        with open(path, 'rb') as f:
+            return pickle.load(f)
+    one = loaded()
+    shared = workers._take_derived(path, one)
+    assert shared == frozenset()
+    first = search.coarse(one, 4)
+    shared = workers._give_derived(path, one, shared)
+    assert {('coarse', 4), 'direction'} <= shared
+    monkeypatch.setattr(search, '_coarse', lambda *args: pytest.fail('derived again'))
+    other = loaded()
+    assert workers._take_derived(path, other) == shared
+    again = search.coarse(other, 4)
+    for name in ('walls', 'open', 'factor', 'direction', 'strength'):
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name))
+    # what the other adds is kept with the first's
+    other.derived['orientation'] = (0.5, 1.0)
+    assert workers._give_derived(path, other, shared) == shared | {'orientation'}
+    assert workers._take_derived(path, loaded()) == shared | {'orientation'}
+
+
+def test_a_match_in_the_estimating_process_takes_and_gives_what_the_processes_derived(repo_root, monkeypatch):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    direction, derived_here = search.wall_direction, []
+    monkeypatch.setattr(search, 'wall_direction', lambda work: derived_here.append(work is grids[0].work)
+                        or direction(work))
+    settings = EstimationSettings(processes=True)
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as m:
+        calls = _calls(grids)
+        m.match_all(calls)   # the grids are sent: each has a file
+        onto = m._files[id(grids[0])][1] + workers.DERIVED_SUFFIX
+        theirs = {'direction': direction(grids[0].work)}   # as a worker derived it
+        workers._write_shared(onto, theirs)
+        grids[0].derived.clear()
+        call = workers.MatchCall(calls[0].i, 0, calls[0].pi, grids[0], dict(descriptors=False))   # a search
+        _same_matches([m.match_here(call)], [call], settings)
+        assert grids[0].derived['direction'] == theirs['direction'] and not any(derived_here)
+        assert ('coarse', settings.search_factor) in workers._read_shared(onto)
+
+
+def test_what_was_derived_from_a_grid_goes_with_its_file(repo_root, monkeypatch):
+    grids = [prepare(g, 0.05, 'akaze') for g in _maps(repo_root)]
+    with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(EstimationSettings(processes=True), pool) as m:
+        m.match_all(_calls(grids))
+        paths = [sent[1] for sent in m._files.values()]
+        for path in paths:
+            workers._write_shared(path + workers.DERIVED_SUFFIX, {'direction': (0.0, 0.0)})
+        monkeypatch.setattr(workers, 'FILES_KEPT_BYTES', 0)
+        m._remove_unused({})
+        assert not any(os.path.exists(p) or os.path.exists(p + workers.DERIVED_SUFFIX) for p in paths)
 
 
 def _calls(grids):
@@ -204,7 +284,10 @@ def test_the_files_of_an_estimation_are_removed(repo_root):
     with ThreadPoolExecutor(2) as pool, workers.ParallelMatcher(settings, pool) as matcher:
         _same_matches(matcher.match_all(calls), calls, settings)
         folder = matcher._folder
-        assert folder is not None and len(os.listdir(folder)) == len(grids)
+        # a file per grid, besides what the workers share (descriptor distances, what a search derives)
+        sent = [n for n in os.listdir(folder) if not n.startswith(workers.NEIGHBOURS_PREFIX)
+                and not n.endswith(workers.DERIVED_SUFFIX)]
+        assert folder is not None and len(sent) == len(grids)
         assert os.path.basename(folder).startswith(f'{workers.FOLDER_PREFIX}{os.getpid()}_')
     assert not os.path.exists(folder)
 

@@ -39,12 +39,22 @@ class NeighbourCache:
             hit = self._items.get(key)
         if hit is not None:
             return hit[2], hit[3]
-        distance, index = cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING,
-                                            K=min(K, len(train)))
+        found = self.shared(query, train)
+        if found is None:
+            found = cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=min(K, len(train)))
+            self.share(query, train, *found)
+        distance, index = found
         with self._lock:
             # the arrays are kept with their result: their ids are not reused while the entry lives
             self._items[key] = (query, train, distance, index)
         return distance, index
+
+    def shared(self, query: np.ndarray, train: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """The distances computed by another process (workers.py), or None."""
+        return None
+
+    def share(self, query: np.ndarray, train: np.ndarray, distance: np.ndarray, index: np.ndarray) -> None:
+        """Hand the distances computed here to the other processes (workers.py)."""
 
 
 def parts_of(descriptors: np.ndarray, parts: Optional[Parts]) -> Parts:
