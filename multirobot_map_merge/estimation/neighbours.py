@@ -39,22 +39,16 @@ class NeighbourCache:
             hit = self._items.get(key)
         if hit is not None:
             return hit[2], hit[3]
-        found = self.shared(query, train)
-        if found is None:
-            found = cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=min(K, len(train)))
-            self.share(query, train, *found)
-        distance, index = found
+        distance, index = self.computed(key, query, train)
         with self._lock:
             # the arrays are kept with their result: their ids are not reused while the entry lives
             self._items[key] = (query, train, distance, index)
         return distance, index
 
-    def shared(self, query: np.ndarray, train: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-        """The distances computed by another process (workers.py), or None."""
-        return None
-
-    def share(self, query: np.ndarray, train: np.ndarray, distance: np.ndarray, index: np.ndarray) -> None:
-        """Hand the distances computed here to the other processes (workers.py)."""
+    def computed(self, key: tuple, query: np.ndarray, train: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """The distances of a pair not kept here (`key`: its key here): computed (or taken from another process,
+        workers.py)."""
+        return cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=min(K, len(train)))
 
 
 def parts_of(descriptors: np.ndarray, parts: Optional[Parts]) -> Parts:

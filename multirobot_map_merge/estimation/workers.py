@@ -122,16 +122,20 @@ class SharedNeighbourCache(NeighbourCache):
         super().__init__()
         self.folder = folder
 
-    def _file(self, query: np.ndarray, train: np.ndarray) -> str:
-        name = hashlib.blake2b(_digest(query) + _digest(train), digest_size=16).hexdigest()
-        return os.path.join(self.folder, f'{NEIGHBOURS_PREFIX}{name}.pickle')
+    def digests(self, key: tuple, query: np.ndarray, train: np.ndarray) -> tuple:
+        """The arrays' digests (_digest)."""
+        return _digest(query), _digest(train)
 
-    def shared(self, query: np.ndarray, train: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-        return None if self.folder is None else _read_shared(self._file(query, train))
-
-    def share(self, query: np.ndarray, train: np.ndarray, distance: np.ndarray, index: np.ndarray) -> None:
-        if self.folder is not None:
-            _write_shared(self._file(query, train), (distance, index))
+    def computed(self, key: tuple, query: np.ndarray, train: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        if self.folder is None:
+            return super().computed(key, query, train)
+        name = hashlib.blake2b(b''.join(self.digests(key, query, train)), digest_size=16).hexdigest()
+        path = os.path.join(self.folder, f'{NEIGHBOURS_PREFIX}{name}.pickle')
+        found = _read_shared(path)
+        if found is None:
+            found = super().computed(key, query, train)
+            _write_shared(path, found)
+        return found
 
 
 class ContentNeighbourCache(SharedNeighbourCache):
@@ -139,6 +143,9 @@ class ContentNeighbourCache(SharedNeighbourCache):
 
     def key(self, query: np.ndarray, train: np.ndarray) -> tuple:
         return _digest(query), _digest(train)
+
+    def digests(self, key: tuple, query: np.ndarray, train: np.ndarray) -> tuple:
+        return key   # computed for the key already
 
 
 def _digest(a: np.ndarray) -> bytes:
