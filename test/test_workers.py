@@ -472,3 +472,57 @@ def test_ctrl_c_ends_merge_maps_and_its_workers_with_one_line(repo_root, shared_
     while _process_group(merge.pid) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _process_group(merge.pid)
+
+
+def _workers_cpu_ticks(executor) -> int:
+    ticks = 0
+    for pid in list(executor._processes):
+        with open(f'/proc/{pid}/stat') as f:
+            ticks += sum(int(v) for v in f.read().rsplit(')', 1)[1].split()[11:13])
+    return ticks
+
+
+def test_an_estimation_ended_in_a_batch_waits_for_the_matches_under_way(shared_dir):
+    """merge_maps ended by SIGTERM in the middle of a batch: its workers went on matching, and shared what they
+    computed in its folder while it was removed (a file written then kept the folder in /dev/shm). The batch ends
+    with the matches under way; those not started are not made."""
+    folder = shared_dir / 'data' / 'dev' / 'large30_hospital_section'
+    grids = [prepare(load_map(str(folder / f'map_{k:02d}.yaml')), 0.05, 'akaze') for k in range(6)]
+    calls = [workers.MatchCall(k, j, grids[k], grids[j], dict(descriptors=False))
+             for j in range(2) for k in range(2, 6)]   # correlation searches: long enough to be ended in
+
+    class Ended(Exception):
+        pass
+
+    def end(signum, frame):
+        raise Ended()
+    previous = signal.signal(signal.SIGUSR1, end)
+    main = threading.get_ident()
+    try:
+        with ThreadPoolExecutor(2) as pool, \
+                workers.ParallelMatcher(EstimationSettings(processes=True), pool) as matcher:
+            executor = workers._POOL.get(2)
+            idle = _workers_cpu_ticks(executor)
+            done = threading.Event()
+
+            def end_while_matching():   # once the workers have matched for a while (bounded)
+                for _ in range(3000):
+                    if done.is_set() or _workers_cpu_ticks(executor) - idle >= 20:
+                        break
+                    time.sleep(0.005)
+                if not done.is_set():
+                    signal.pthread_kill(main, signal.SIGUSR1)
+            ender = threading.Thread(target=end_while_matching)
+            ender.start()
+            try:
+                with pytest.raises(Ended):
+                    matcher.match_all(calls)
+            finally:
+                done.set()
+                ender.join(20)
+            # no match runs on after the batch ended
+            ended = _workers_cpu_ticks(executor)
+            time.sleep(0.5)
+            assert _workers_cpu_ticks(executor) - ended <= 5
+    finally:
+        signal.signal(signal.SIGUSR1, previous)

@@ -36,7 +36,7 @@ import threading
 import time
 import weakref
 from collections import OrderedDict
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -64,7 +64,7 @@ FILES_KEPT_BYTES = 256 * 2 ** 20
 SHARED_FOLDER = '/dev/shm'
 SHARED_FREE_BYTES = 2 * FILES_KEPT_BYTES   # free in /dev/shm for the files to go there: those kept and a batch's
 FOLDER_PREFIX = 'map_merge_'   # an estimation's folder: map_merge_<pid of the estimating process>_<random>
-WRITE_WAIT_S = 10.0   # at the end of an estimation, for grids being written to its folder
+WRITE_WAIT_S = 10.0   # at the end of an estimation, for grids being written to its folder and the matches under way
 STALE_S = 600.0   # a folder of a process that has gone, untouched this long, is removed by the next estimation
 # what the workers' server imports once, before it forks them. Not this package: Python 3.11's server looks in its
 # working folder first, not in this process's sys.path, and a copy of the package in the folder merge_maps ran from
@@ -489,6 +489,14 @@ class ParallelMatcher:
                                       calls[n].options, level) for n in order}
         try:
             results = [futures[n].result() for n in range(len(calls))]
+        except BaseException:
+            # the estimation ends in the middle of a batch (SIGTERM, Ctrl-C): the matches under way end before it
+            # removes its folder, where they share what they computed (a file written while the folder was removed
+            # kept it in /dev/shm); those not started are not made
+            for future in futures.values():
+                future.cancel()
+            wait(futures.values(), timeout=WRITE_WAIT_S)
+            raise
         finally:
             self._remove_unused(grids)
         self.stats.add(time.perf_counter() - started, [r[2:] for r in results])
