@@ -572,6 +572,8 @@ def test_the_maps_of_a_group_whose_member_joined_the_merge_are_searched_onto_it(
     alone = grower.group(3)
     assert group_mates([group, other, alone], group) == [3]
     assert group_mates([group, alone], group) == []
+    # and the maps a group let go when it fell apart (split.py), not those in the merge again
+    assert group_mates([group, alone], group, split_off={1, 3}) == [3]
     assert grower.search_left_out(group) == 0 and 3 not in group.members
     assert grower.search_left_out(group, also=[3]) == 1 and 3 in group.members
     rot, shift = tf.difference(group.members[3], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))

@@ -25,6 +25,7 @@ def test_a_group_in_two_halves_falls_apart_into_them():
     assert parts_of(grower, group) == [{0, 1}, {2, 3}]
     new = split(grower, group)
     assert sorted(group.members) == [0, 1] and len(new) == 1 and sorted(new[0].members) == [2, 3]
+    assert grower.split_off == {2, 3}   # let go: searched onto the final merge at the end (estimator.group_mates)
     # the half keeps its own placements, in the frame of its seed
     other = 5 - new[0].seed
     assert np.allclose(new[0].members[other], np.eye(3), atol=1e-9)
@@ -35,7 +36,7 @@ def test_a_group_that_holds_together_stays_whole():
     grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 100, 260)]
     grower, group = _merge_of(grids, [0, 1, 2, 3])
     assert len(parts_of(grower, group)) == 1
-    assert split(grower, group) == [] and sorted(group.members) == [0, 1, 2, 3]
+    assert split(grower, group) == [] and sorted(group.members) == [0, 1, 2, 3] and not grower.split_off
 
 
 def test_the_part_with_the_reference_is_kept():

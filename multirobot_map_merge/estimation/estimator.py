@@ -21,7 +21,7 @@ import math
 import time
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -160,10 +160,11 @@ def search_grow(grower: Grower, groups: List[Group], reference: Optional[int]) -
     return done + groups
 
 
-def group_mates(groups: Sequence[Group], merge: Group) -> List[int]:
-    """The grids outside `merge` whose group (one of `groups`) has a member that is in the merge now."""
-    return sorted({k for g in groups if g is not merge and not g.members.keys().isdisjoint(merge.members)
-                   for k in g.members if k not in merge.members})
+def group_mates(groups: Sequence[Group], merge: Group, split_off: Iterable[int] = ()) -> List[int]:
+    """The grids outside `merge` whose group (one of `groups`) has a member that is in the merge now, and those of
+    `split_off` (a group that fell apart after a member left let them go, split.py: they were placed in it once)."""
+    mates = {k for g in groups if g is not merge and not g.members.keys().isdisjoint(merge.members) for k in g.members}
+    return sorted((mates | set(split_off)) - set(merge.members))
 
 
 def descriptor_groups(grower: Grower, unplaced: List[int], merge: Optional[Group] = None,
@@ -509,8 +510,10 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             if joined or moved:
                 # beside them the maps left out can share enough now; and the maps of a group that one of them was
                 # in overlap them (the held-out school36_v: three maps whose group the side group's maps had been
-                # part of stayed out, each placed right by a search onto the final merge at agreement 1.00)
-                grower.search_left_out(chosen, also=group_mates(groups, chosen), refused=True)
+                # part of stayed out, each placed right by a search onto the final merge at agreement 1.00), and so
+                # can the maps a group let go when it fell apart (school36_v with groups matched again only as they
+                # grow: maps 01 and 25, placed in the merge by broken map_31, let go when it left, stayed out)
+                grower.search_left_out(chosen, also=group_mates(groups, chosen, grower.split_off), refused=True)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them
             relax_group(chosen, usable, prepared, settings, pool=pool)

@@ -202,6 +202,7 @@ class Grower:
         self.left_out_evicted: set = set()
         self.left_out_footprints: Dict[int, Box] = {}
         self.side_groups: List[Dict[int, np.ndarray]] = []   # groups taken apart (side_groups.py)
+        self.split_off: set = set()   # grids a group let go when it fell apart after a member left (split.py)
 
     def keypoints_of(self, k: int, part: PreparedGrid) -> tuple:
         """Grid k's keypoints (its map frame) and descriptors, kept from an earlier estimation while its map has

@@ -101,6 +101,7 @@ def split(grower, group) -> list:
         grower.restate_refused(old_seed, new_seed, group.reframe(new_seed))
     out = []
     for part in placed:
+        grower.split_off.update(part)
         for k in part:
             group.leave(k)
         new = grower.group_of(max(part, key=lambda j: grower.prepared[j].known_pixels), part)
