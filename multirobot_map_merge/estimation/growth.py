@@ -180,9 +180,8 @@ class Grower:
         self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
-        self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
-        # (id, id) of two groups -> (members, known pixels) of each at their last match
-        self.group_sizes: Dict[tuple, tuple] = {}
+        # (id, id) of two groups -> (them, their state, last match, (members, known pixels) of each then)
+        self.group_matches: Dict[tuple, tuple] = {}
         # the batches of matches run in parallel (workers.py); its descriptor distances serve this estimation's
         # other matches too (neighbours.py)
         self.matcher = matcher if matcher is not None else ParallelMatcher(settings, pool)
@@ -707,11 +706,10 @@ class Grower:
         repetitive building are refused at one alias place again and again as both grow by a member or two
         (hospital36: a group of 5-9 maps onto the merge of 10-15, nine times, each about 150 ms)."""
         last = self.group_matches.get((id(small), id(big)))
-        sizes = self.group_sizes.get((id(small), id(big)))
-        if last is None or sizes is None or last[0] is not small or last[1] is not big or last[3].accepted:
+        if last is None or last[0] is not small or last[1] is not big or last[3].accepted:
             return False
-        return all(members <= frozenset(g.members) and g.union.known_pixels < GROUP_GROWTH * known
-                   for g, (members, known) in zip((small, big), sizes))
+        return all(members <= g.members.keys() and g.union.known_pixels < GROUP_GROWTH * known
+                   for g, (members, known) in zip((small, big), last[4]))
 
     def joins_where_met(self, small: Group, big: Group, small_to_big: np.ndarray) -> bool:
         """Whether a member of either group, the groups placed together by small_to_big (metric), passes there alone
@@ -1099,9 +1097,9 @@ class Grower:
                          dict(onto_union=len(big.members) > 1, between_groups=True, search_spent=spent))
 
     def _keep_group_match(self, small: Group, big: Group, spent: bool, m: PairMatch) -> None:
-        self.group_matches[(id(small), id(big))] = (small, big, ((small.union.version, big.union.version), spent), m)
-        self.group_sizes[(id(small), id(big))] = tuple((frozenset(g.members), g.union.known_pixels)
-                                                       for g in (small, big))
+        self.group_matches[(id(small), id(big))] = (small, big, ((small.union.version, big.union.version), spent), m,
+                                                    tuple((frozenset(g.members), g.union.known_pixels)
+                                                          for g in (small, big)))
 
     def _match_ahead(self, upcoming: Iterable[Tuple[Group, Group]]) -> None:
         """Match the first `threads` pairs of groups (small, big) of `upcoming` (the next that merge_groups will
