@@ -3,6 +3,7 @@
 
     scripts/env.sh python bench/profile_estimation.py [MAPS] [--threads-gain] [--phases] [--kinds]
     scripts/env.sh python bench/profile_estimation.py [MAPS] --cores
+    scripts/env.sh python bench/profile_estimation.py [MAPS ...] --timeline
 
 MAPS: a folder of map_*.yaml (default: the generated hospital36 of bench_merge.py --generated, out/bench). The
 estimation runs serially (its thread pools replaced by loops, no worker processes, OpenCV on one thread) under
@@ -28,6 +29,12 @@ the estimating process's and its worker processes', their ratio to the serial CP
 written and read, the workers' own caches, the threads of the estimating process), and the cores the estimation kept
 busy on average (that CPU over its wall time; a core idles while the estimating process works alone between
 batches, or while one worker ends a batch).
+With --timeline it prints only, for each folder of maps, an estimation with its defaults (not under the profiler)
+stage by stage as its main thread runs them (TIMELINE: when each starts, how long it takes, and how much of that
+the batches of matches on the worker processes take, the estimating process's preparation of their grids
+included), then the wall time in batches and in the main thread's own work between them, during which one core at
+most is busy (its OpenCV calls aside); and the thread time that process spent in the batches detecting keypoints
+and computing wall fields (done there once, before the workers match), and writing grids for the workers.
 """
 from __future__ import annotations
 
@@ -64,6 +71,14 @@ PHASES = [('batches of matches in parallel', [(('growth.py', 'match'), [('growth
           ('search-placed members searched again', [(('searched_again.py', 'search_placed_again'), None)]),
           ('the final relaxation', [(('estimator.py', 'relax_group'), None)])]
 
+# the stages of an estimation afresh in the order its main thread runs them (--timeline): (module, function), the
+# module's attribute replaced ('Grower': a method of growth.Grower); a stage called inside another is part of that one
+TIMELINE = [('estimator', 'descriptor_groups'), ('estimator', 'search_grow'), ('Grower', 'confirm_searches'),
+            ('Grower', 'evict_contradicted'), ('Grower', 'search_left_out'), ('estimator', 'search_side_groups'),
+            ('estimator', 'search_placed_again'), ('estimator', 'relax_group'),
+            ('estimator', 'search_doubted_again'), ('estimator', 'contradicting_pairs'),
+            ('estimator', '_consistent_of')]
+
 # the kinds of match (--kinds): the first of these functions found up the stack of a match_pair call names it
 # (grow: onto one grid or onto a union)
 KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out', 'the maps left out searched again'),
@@ -77,7 +92,7 @@ KINDS = [('PairEvidence.of', 'pair evidence (stronger.py)'), ('search_left_out',
 ONE = '''
 import cProfile, collections, glob, os, sys, time
 sys.path.insert(0, {root!r})
-serial, profile, kinds, cores = {serial!r}, {profile!r}, {kinds!r}, {cores!r}
+serial, profile, kinds, cores, timeline = {serial!r}, {profile!r}, {kinds!r}, {cores!r}, {timeline!r}
 import cv2
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.estimation.settings import EstimationSettings
@@ -148,6 +163,39 @@ if kinds:
         seen.add(made)
         return m
     workers.match_pair = timed
+if timeline:
+    import multirobot_map_merge.estimation.growth as growth, multirobot_map_merge.estimation.workers as workers
+    from multirobot_map_merge.estimation.features import PreparedGrid
+    stages, depth = [], [0]   # (stage, start, wall s, of it in batches); stages under way on the main thread
+    spent = collections.Counter()   # wall s in batches; thread s detecting, computing wall fields, writing grids
+    def stage(f, name):
+        def g(*args, **options):
+            started, before = time.perf_counter(), spent['batches']
+            depth[0] += 1
+            try:
+                return f(*args, **options)
+            finally:
+                depth[0] -= 1
+                if not depth[0]:   # a stage called inside another is part of it
+                    stages.append((name, started, time.perf_counter() - started, spent['batches'] - before))
+        return g
+    def counted(f, label, needed=lambda self: True):
+        def g(self, *args, **options):
+            if not needed(self):
+                return f(self, *args, **options)
+            started = time.perf_counter()
+            try:
+                return f(self, *args, **options)
+            finally:
+                spent[label] += time.perf_counter() - started
+        return g
+    for owner, function in {timeline_stages!r}:
+        where = growth.Grower if owner == 'Grower' else estimator
+        setattr(where, function, stage(getattr(where, function), function))
+    workers.ParallelMatcher._on_processes = counted(workers.ParallelMatcher._on_processes, 'batches')
+    workers.ParallelMatcher._path = counted(workers.ParallelMatcher._path, 'writing')
+    PreparedGrid.describe = counted(PreparedGrid.describe, 'detection', lambda p: p.keypoints is None)
+    PreparedGrid.wall_fields = counted(PreparedGrid.wall_fields, 'wall fields', lambda p: p._fields is None)
 grids = [load_map(p) for p in sorted(glob.glob({maps!r} + '/map_*.yaml'))]
 settings = EstimationSettings(processes=not serial)
 wall, cpu = time.perf_counter(), time.process_time()
@@ -201,6 +249,17 @@ if kinds:
         what = f'{{kind}}: {{verdict}}' + (', searched' if searched else '')
         print(f'    {{what:84s}} {{n:4d}} matches {{seconds:6.2f}} s CPU ({{search:5.2f}}) '
               f'{{100 * seconds / cpu:5.1f}} %')
+if timeline:
+    total = time.perf_counter() - wall
+    folder = os.path.basename({maps!r})
+    print(f'{{folder}}: {{total:.2f}} s with its defaults')
+    for name, started, took, batches in stages:
+        print(f'  {{started - wall:6.2f}} s  {{name:22s}} {{took:6.2f}} s, in batches {{batches:5.2f}} s')
+    alone = total - spent['batches']
+    print(f'  in batches {{spent["batches"]:.2f}} s, the main thread alone {{alone:.2f}} s '
+          f'({{100 * alone / total:.0f}} %); in the batches the estimating process detected keypoints '
+          f'{{spent["detection"]:.2f}} s, computed wall fields {{spent["wall fields"]:.2f}} s and wrote grids '
+          f'{{spent["writing"]:.2f}} s (thread time)')
 if cores:   # the CPU of this process and of its worker processes (utime + stime), before the pool ends with it
     import os
     from multirobot_map_merge.estimation import workers as pool
@@ -214,9 +273,10 @@ print(time.perf_counter() - wall)
 '''
 
 
-def run(maps: Path, serial: bool, profile: str = '', kinds: bool = False, cores: bool = False) -> subprocess.Popen:
+def run(maps: Path, serial: bool, profile: str = '', kinds: bool = False, cores: bool = False,
+        timeline: bool = False) -> subprocess.Popen:
     code = ONE.format(root=str(REPO), maps=str(maps), serial=serial, profile=profile, kinds=KINDS if kinds else [],
-                      cores=cores)
+                      cores=cores, timeline=timeline, timeline_stages=TIMELINE)
     return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
 
 
@@ -261,16 +321,27 @@ def cumulative(stats: dict, suffix: str, name: str, callers=None) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('maps', nargs='?', type=Path, default=DEFAULT_MAPS)
+    ap.add_argument('maps', nargs='*', type=Path, default=[DEFAULT_MAPS],
+                    help='folders of map_*.yaml (more than one only with --timeline)')
     ap.add_argument('--threads-gain', action='store_true', help='also time the defaults and two processes')
     ap.add_argument('--phases', action='store_true', help='also split an estimation with its defaults into phases')
     ap.add_argument('--kinds', action='store_true', help='also the CPU of each kind of match, serially')
     ap.add_argument('--cores', action='store_true',
                     help='only the CPU of a serial estimation and of one with its defaults (its process and its '
                          'workers), and the cores it kept busy on average')
+    ap.add_argument('--timeline', action='store_true',
+                    help='only the stages of an estimation with its defaults over its wall time, for each folder')
     args = ap.parse_args()
-    if not glob.glob(str(args.maps / 'map_*.yaml')):
-        sys.exit(f'profile_estimation: no map_*.yaml in {args.maps} (bench_merge.py --generated makes them)')
+    for maps in args.maps:
+        if not glob.glob(str(maps / 'map_*.yaml')):
+            sys.exit(f'profile_estimation: no map_*.yaml in {maps} (bench_merge.py --generated makes them)')
+    if args.timeline:
+        for maps in args.maps:
+            seconds(run(maps, False, timeline=True))
+        return
+    if len(args.maps) > 1:
+        sys.exit('profile_estimation: one folder of maps, except with --timeline')
+    args.maps = args.maps[0]
     if args.cores:
         wall, serial, _ = cpu_seconds(args.maps, True)
         print(f'{args.maps.name}: serial {wall:.2f} s, CPU {serial:.2f} s')
