@@ -17,7 +17,9 @@ match logs in a worker (at the level the estimating process logs this package at
 process, with the match's result, in the order of the calls.
 
 A program that uses the estimation with processes must guard its main code with `if __name__ == '__main__':`, as
-multiprocessing requires: a worker imports the main module.
+multiprocessing requires: a worker runs the main module as it starts. A worker that finds itself running an
+estimation there ends at once with one line (UNGUARDED_EXIT), and after FAILED_STARTS pools in a row broke before
+any batch ran on them the estimating process runs its matches on threads, with one warning that names the cause.
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ import os
 import pickle
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -56,6 +59,10 @@ PACKAGE_LOGGER = 'rosout.multirobot_map_merge'   # the core's loggers: a worker'
 
 WATCH_PERIOD_S = 1.0   # how often a worker checks that the estimating process is still there
 STARTED_TOGETHER_S = 0.05   # a task this long on each worker makes the pool start them all at once
+# pools in a row that broke before a batch ran on them: the processes are not used again in this process (a worker
+# killed on the way breaks a pool that worked: the next batch starts one again)
+FAILED_STARTS = 2
+UNGUARDED_EXIT = 3   # a worker's exit status when it ends as it starts, running an estimation (_end_if_starting)
 LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its grids, one at a time each)
 # the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is about 21 bytes a pixel at
 # the working resolution (its fields), 3.5 MB for the median map of the generated 36-map buildings, 14 MB for a
@@ -273,6 +280,19 @@ def _match_in_worker(estimation: str, i: int, j: int, path_i: str, path_j: str, 
         package.removeHandler(handler)
 
 
+def _end_if_starting() -> None:
+    """End this process at once, with one line, if it is a worker that has not finished starting: it runs the main
+    module of the estimating process (as multiprocessing starts a worker), and that module runs an estimation when
+    imported, outside `if __name__ == '__main__':`. Else it would run the whole estimation, fail to start processes
+    of its own and end with a traceback of 40 lines. multiprocessing marks a process that is starting so
+    (`_inheriting`, which its own check of the same mistake reads)."""
+    if getattr(multiprocessing.current_process(), '_inheriting', False):
+        sys.stderr.write('multirobot_map_merge: a matching process ended as it started: the main module runs an '
+                         'estimation when imported (guard it with if __name__ == "__main__":)\n')
+        sys.stderr.flush()
+        os._exit(UNGUARDED_EXIT)
+
+
 # --- in the estimating process ---------------------------------------------------------------------------------
 
 class _Pool:
@@ -282,6 +302,9 @@ class _Pool:
         self._lock = threading.Lock()
         self._executor: Optional[ProcessPoolExecutor] = None
         self._workers = 0
+        self._worked = False      # a batch has run on the pool now started
+        self._failed_starts = 0   # pools in a row that broke before a batch ran on them
+        self.unusable = False     # FAILED_STARTS of them: this process matches on threads from now on
         atexit.register(self.shutdown)
 
     def get(self, workers: int) -> ProcessPoolExecutor:
@@ -292,11 +315,14 @@ class _Pool:
                 context.set_forkserver_preload(SERVER_PRELOAD)
                 self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                                      initializer=_start_worker, initargs=(os.getpid(),))
-                self._workers = workers
+                self._workers, self._worked = workers, False
             return self._executor
 
     def start(self, workers: int) -> None:
         """Start every worker now (the pool starts one only when the others are busy), a broken pool afresh."""
+        _end_if_starting()
+        if self.unusable:
+            return
         for _ in range(2):
             executor = self.get(workers)
             try:
@@ -306,9 +332,20 @@ class _Pool:
             except (BrokenProcessPool, RuntimeError):
                 self.broken(executor)
 
-    def broken(self, executor: ProcessPoolExecutor) -> None:
+    def worked(self, executor: ProcessPoolExecutor) -> None:
+        """A batch ran on `executor`."""
         with self._lock:
             if self._executor is executor:
+                self._worked, self._failed_starts = True, 0
+
+    def broken(self, executor: ProcessPoolExecutor) -> None:
+        """`executor` broke (a worker ended): it is stopped, and the next batch starts a pool afresh, unless
+        FAILED_STARTS pools in a row broke before a batch ran on them (`unusable`): every worker ended as it started,
+        and so would the next pool's (a main module that runs the estimation when imported, _end_if_starting)."""
+        with self._lock:
+            if self._executor is executor:
+                self._failed_starts = 0 if self._worked else self._failed_starts + 1
+                self.unusable = self.unusable or self._failed_starts >= FAILED_STARTS
                 self._stop(wait=False)
 
     def shutdown(self) -> None:
@@ -322,6 +359,9 @@ class _Pool:
 
 
 _POOL = _Pool()
+# why the processes are not used once _POOL is unusable, for the warning
+UNUSABLE = (f'{FAILED_STARTS} pools in a row ended before they matched; a main module that runs the estimation when '
+            f'imported, outside if __name__ == "__main__":, makes every worker end so')
 _SAID = Throttle(math.inf)   # the warnings of _without_processes: once per process and cause
 
 
@@ -386,6 +426,8 @@ class ParallelMatcher:
                 _POOL.start(settings.threads)   # while the grids are prepared
             except OSError as e:
                 self._without_processes(e)
+            if _POOL.unusable:
+                self._without_processes(UNUSABLE)
         self._folder: Optional[str] = None
         self._remove_folder: Optional[weakref.finalize] = None
         # id of a grid sent -> (it, its file, the file's size), least recently used first
@@ -438,15 +480,17 @@ class ParallelMatcher:
             except BrokenProcessPool as e:
                 log.warning('the matching processes failed (%s): this batch runs on threads', e)
                 _POOL.broken(executor)
+                if _POOL.unusable:
+                    self._without_processes(UNUSABLE)
             except OSError as e:
                 self._without_processes(e)
         return list(self.threads.map(self._match_here, calls))
 
-    def _without_processes(self, e: OSError) -> None:
+    def _without_processes(self, why: object) -> None:
         """The rest of this estimation's matches run on threads: processes cannot start (no POSIX semaphores, as
-        in some sandboxes) or the grids cannot be written (a full disk); every batch would fail the same way, and
-        a pool that runs is sound."""
-        said = f'the matching processes cannot be used ({e}): the matches of this estimation run on threads'
+        in some sandboxes), the grids cannot be written (a full disk), or the workers end as they start (UNUSABLE);
+        every batch would fail the same way, and a pool that runs is sound."""
+        said = f'the matching processes cannot be used ({why}): the matches of this estimation run on threads'
         (log.warning if _SAID(said) else log.debug)('%s', said)   # a node would say it at every estimation
         self.processes = False
 
@@ -499,6 +543,7 @@ class ParallelMatcher:
             raise
         finally:
             self._remove_unused(grids)
+        _POOL.worked(executor)
         self.stats.add(time.perf_counter() - started, [r[2:] for r in results])
         for _, records, _, _ in results:
             for record in records:
