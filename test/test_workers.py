@@ -434,8 +434,9 @@ def test_a_script_that_estimates_when_imported_ends_its_workers_at_once_and_then
     assert json.loads(out.stdout.strip().splitlines()[-1]) == [[t is not None for t in on_threads.transforms]] * 3
     lines = out.stderr.splitlines()
     assert 'Traceback' not in out.stderr, out.stderr
-    assert sum('ended as it started' in line for line in lines) <= 2 * workers.FAILED_STARTS * threads, out.stderr
-    assert sum('matching processes failed' in line for line in lines) == workers.FAILED_STARTS, out.stderr
+    # each pool that breaks so counts, whether its batch or its start found it broken
+    assert sum('ended as it started' in line for line in lines) <= workers.FAILED_STARTS * threads, out.stderr
+    assert sum('matching processes failed' in line for line in lines) <= workers.FAILED_STARTS, out.stderr
     assert sum('__name__ == "__main__"' in line and 'cannot be used' in line for line in lines) == 1, out.stderr
 
 
