@@ -724,36 +724,6 @@ def test_the_last_group_match_onto_a_union_is_made_together_with_the_first_onto_
     assert batches == [[(3, 0), (5, 3)]] and alone == []
 
 
-@pytest.mark.parametrize('growth, sizes', [(100.0, [3, 5]), (1.0, [3, 4, 5])])
-def test_two_groups_refused_wait_while_others_merge_and_are_matched_again_at_the_end(repo_root, monkeypatch,
-                                                                                     growth, sizes):
-    """merge_groups: a group refused onto a union is not matched onto it again as other groups join it while neither
-    has grown by GROUP_GROWTH; once none merges, it is matched onto the union as it has become. With any growth
-    enough (GROUP_GROWTH 1.0) it is matched again after each join."""
-    import multirobot_map_merge.estimation.growth as growth_module
-    from multirobot_map_merge.estimation.growth import Grower
-    from multirobot_map_merge.estimation.pair import PairMatch
-    monkeypatch.setattr(growth_module, 'GROUP_GROWTH', growth)
-    grower, big = _three_placed_and_three_more(repo_root, 'chain3', 'three_robots')
-    onto_big = []   # (grid, members of the big union) of each match of a single grid onto it
-
-    def verdict(i, j):
-        if j == big.seed:
-            onto_big.append((i, len(big.members)))
-        m = PairMatch(i, j, accepted=(i, j) != (3, big.seed), reason='' if (i, j) != (3, big.seed) else 'refused')
-        m.transform_m = np.eye(3)
-        return m
-
-    monkeypatch.setattr(grower.matcher, 'match_all', lambda calls: [verdict(c.i, c.j) for c in calls])
-    monkeypatch.setattr(Grower, '_group_match', lambda self, small, onto, spent: verdict(small.seed, onto.seed))
-    monkeypatch.setattr(Grower, 'grow', lambda self, group, unplaced, search=True: False)
-    monkeypatch.setattr(Grower, '_waits', lambda self, m, members: False)
-    monkeypatch.setattr(Grower, 'evict_at_join', lambda self, small, onto, m: False)
-    merged = grower.merge_groups([big] + [grower.group(k) for k in (3, 4, 5)], [])
-    assert [n for k, n in onto_big if k == 3] == sizes
-    assert sorted(len(g.members) for g in merged) == [1, 5]
-
-
 def test_a_failed_search_waits_for_search_again_which_a_found_overlap_does_not_stop(repo_root):
     """A grid whose search against a group failed in this estimation is not searched against it again as the group
     grows (the broken maps of a generated building were searched in vain against every larger union), until

@@ -511,8 +511,8 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 # beside them the maps left out can share enough now; and the maps of a group that one of them was
                 # in overlap them (the held-out school36_v: three maps whose group the side group's maps had been
                 # part of stayed out, each placed right by a search onto the final merge at agreement 1.00), and so
-                # can the maps a group let go when it fell apart (school36_v with groups matched again only as they
-                # grow: maps 01 and 25, placed in the merge by broken map_31, let go when it left, stayed out)
+                # can the maps a group let go when it fell apart (school36_v with its groups joined in another
+                # order: maps 01 and 25, placed in the merge by broken map_31, let go when it left, stayed out)
                 grower.search_left_out(chosen, also=group_mates(groups, chosen, grower.split_off), refused=True)
         if settings.relax_final and not tracked:
             # an estimation afresh: tracking refines kept placements together itself, and its verdicts hold them

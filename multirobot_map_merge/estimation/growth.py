@@ -43,7 +43,6 @@ LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement
 JOIN_EVICTIONS = 3     # members taken out of two groups whose unions refuse each other (evict_at_join), at most
 LEFT_OUT_ROUNDS = 3    # search_left_out's rounds: the searches, and again while maps join (those short of the share)
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
-GROUP_GROWTH = 1.25    # two groups refused are matched again while others merge only once either has grown this much
 SEED_PROBE = 12        # grids matched first onto a new seed (grow's probe)
 SEED_CONTRADICTED = 8  # of those, refused ones that overlap it and partly contradict it, none accepted: the seed waits
 
@@ -180,8 +179,7 @@ class Grower:
         self.judged: Dict[tuple, Placement] = {}   # eviction.judge_members' verifications in this estimation
         self.evicted: set = set()    # grids taken out of the merge (evict_contradicted): they stay out of it
         self.postponed = 0          # searches the budget left to a later estimation
-        # (id, id) of two groups -> (them, their state, last match, (members, known pixels) of each then)
-        self.group_matches: Dict[tuple, tuple] = {}
+        self.group_matches: Dict[tuple, tuple] = {}   # (id, id) of two groups -> (them, their state, last match)
         # the batches of matches run in parallel (workers.py); its descriptor distances serve this estimation's
         # other matches too (neighbours.py)
         self.matcher = matcher if matcher is not None else ParallelMatcher(settings, pool)
@@ -638,22 +636,12 @@ class Grower:
     def merge_groups(self, groups: List[Group], unplaced: List[int]) -> List[Group]:
         """Match groups against each other (the smaller union onto the larger) until no two merge; a merged group
         grows again with the grids still unplaced (by descriptors alone while another group is larger)."""
-        changed, patient = True, True
-        while len(groups) > 1:
-            if not changed:
-                if not patient or not waited:
-                    break
-                # none merged: the pairs that waited for their unions to grow are matched as they are now, so that
-                # merge_groups ends, as without the wait, with every two groups matched as they are
-                patient = False
-            changed, waited = False, False
+        changed = True
+        while changed and len(groups) > 1:
+            changed = False
             groups.sort(key=lambda g: -len(g.members))
 
             def matched(small: Group, big: Group) -> bool:
-                nonlocal waited
-                if patient and self._grown_little(small, big):
-                    waited = True
-                    return True
                 # a single grid matched against this union already
                 return len(small.members) == 1 and self.tried.get((small.seed, big.key)) == big.union.version
 
@@ -691,7 +679,7 @@ class Grower:
                         # largest group of those merge_groups returns anyway
                         largest = all(len(g.members) <= len(groups[a].members) for g in groups)
                         self.grow(groups[a], unplaced, search=largest)
-                        changed, patient = True, True
+                        changed = True
                         break
                     if not m.accepted and self.evict_at_join(small, big, m):
                         changed = True   # the two are matched again without the member taken out
@@ -699,17 +687,6 @@ class Grower:
                 if changed:
                     break
         return groups
-
-    def _grown_little(self, small: Group, big: Group) -> bool:
-        """Whether the last match of the two groups refused them and since then neither lost a member nor grew by
-        GROUP_GROWTH (known pixels): while other groups merge, such a pair waits (merge_groups). Two unions in a
-        repetitive building are refused at one alias place again and again as both grow by a member or two
-        (hospital36: a group of 5-9 maps onto the merge of 10-15, nine times, each about 150 ms)."""
-        last = self.group_matches.get((id(small), id(big)))
-        if last is None or last[0] is not small or last[1] is not big or last[3].accepted:
-            return False
-        return all(members <= g.members.keys() and g.union.known_pixels < GROUP_GROWTH * known
-                   for g, (members, known) in zip((small, big), last[4]))
 
     def joins_where_met(self, small: Group, big: Group, small_to_big: np.ndarray) -> bool:
         """Whether a member of either group, the groups placed together by small_to_big (metric), passes there alone
@@ -1097,9 +1074,7 @@ class Grower:
                          dict(onto_union=len(big.members) > 1, between_groups=True, search_spent=spent))
 
     def _keep_group_match(self, small: Group, big: Group, spent: bool, m: PairMatch) -> None:
-        self.group_matches[(id(small), id(big))] = (small, big, ((small.union.version, big.union.version), spent), m,
-                                                    tuple((frozenset(g.members), g.union.known_pixels)
-                                                          for g in (small, big)))
+        self.group_matches[(id(small), id(big))] = (small, big, ((small.union.version, big.union.version), spent), m)
 
     def _match_ahead(self, upcoming: Iterable[Tuple[Group, Group]]) -> None:
         """Match the first `threads` pairs of groups (small, big) of `upcoming` (the next that merge_groups will
