@@ -62,6 +62,9 @@ STARTED_TOGETHER_S = 0.05   # a task this long on each worker makes the pool sta
 # pools in a row that broke before a batch ran on them: the processes are not used again in this process (a worker
 # killed on the way breaks a pool that worked: the next batch starts one again)
 FAILED_STARTS = 2
+# why the processes are not used after that, for the warning
+UNUSABLE = (f'{FAILED_STARTS} pools in a row ended before they matched; a main module that runs the estimation when '
+            f'imported, outside if __name__ == "__main__":, makes every worker end so')
 UNGUARDED_EXIT = 3   # a worker's exit status when it ends as it starts, running an estimation (_end_if_starting)
 LOADED_KEPT = 8   # grids a worker keeps loaded (a batch needs one union and its grids, one at a time each)
 # the files of an estimation kept (in RAM, in /dev/shm) for later batches: a grid's file is about 21 bytes a pixel at
@@ -359,9 +362,6 @@ class _Pool:
 
 
 _POOL = _Pool()
-# why the processes are not used once _POOL is unusable, for the warning
-UNUSABLE = (f'{FAILED_STARTS} pools in a row ended before they matched; a main module that runs the estimation when '
-            f'imported, outside if __name__ == "__main__":, makes every worker end so')
 _SAID = Throttle(math.inf)   # the warnings of _without_processes: once per process and cause
 
 
