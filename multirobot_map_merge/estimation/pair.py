@@ -276,8 +276,17 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # a placement that agrees beats any that does not, however large
         return plausible(c, s), c.score(s.conflict_weight)
 
+    def first(candidates: List[Placement]) -> Optional[Placement]:
+        # the best by rank, unless a distinct place that agrees ranks higher without the conflicts at the fringe
+        # (Placement.rank); between estimates of one place the score chooses
+        top = max(candidates, key=rank, default=None)
+        if top is None or not plausible(top, s):
+            return top
+        evident = max((c for c in candidates if plausible(c, s)), key=lambda c: c.rank(s.conflict_weight))
+        return evident if distinct(evident.transform, top.transform, pi, s) else top
+
     candidates = refine_all(hypotheses(p, q, s, rng))
-    best = max(candidates, key=rank, default=None)
+    best = first(candidates)
     searched = False
     if search and (best is None or not plausible(best, s)) \
             and (between_groups or not overlap_found(best, s, onto_union)):
@@ -290,14 +299,14 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
                                                       keep=s.search_keep, penalty=s.search_penalty,
                                                       free_reward=s.search_free_reward, threads=s.threads,
                                                       distinct_places=distinct_places))
-        best = max(candidates, key=rank, default=None)
+        best = first(candidates)
         searched = True
     if best is None:
         result.reason = 'no rigid model'
         return result
     if (between_groups or searched) and s.polish and not plausible(best, s):
         candidates += rescued(pi, pj, candidates, s, rng, RESCUE_PLACES if between_groups else RESCUE_SINGLE)
-        best = max(candidates, key=rank)
+        best = first(candidates)
     elif s.polish and not plausible(best, s):
         # a near miss: on a small common area (or onto a union) ICP can stop a pixel off, where thin walls miss
         # each other and contradict; polished, it is judged again (ICP from the other estimates of that place, which
@@ -317,6 +326,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
             slid = (refine(model, draws=draws) for model in slid_alternatives(pi, pj, best, s))
             candidates += [c for c in slid if c is not None and distinct(c.transform, best.transform, pi, s)]
     candidates.sort(key=rank, reverse=True)
+    lead = first(candidates)
+    candidates.insert(0, candidates.pop(next(n for n, c in enumerate(candidates) if c is lead)))
     if s.polish and plausible(candidates[0], s):
         # ICP can settle in a nearby minimum, a degree off on a small common area and even on a large one; the
         # other plausible estimates of the same place are polished too, and the most consistent result is kept
