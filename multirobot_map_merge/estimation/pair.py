@@ -272,14 +272,14 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     result.descriptor_matches = len(pairs)
     p, q = (pi.keypoints[pairs[:, 0]], pj.keypoints[pairs[:, 1]]) if len(pairs) else (np.zeros((0, 2)),) * 2
 
-    def rank(c: Placement):
+    def by_score(c: Placement):
         # a placement that agrees beats any that does not, however large
         return plausible(c, s), c.score(s.conflict_weight)
 
     def first(candidates: List[Placement]) -> Optional[Placement]:
-        # the best by rank, unless a distinct place that agrees ranks higher without the conflicts at the fringe
+        # the best by score, unless a distinct place that agrees ranks higher without the conflicts at the fringe
         # (Placement.rank); between estimates of one place the score chooses
-        top = max(candidates, key=rank, default=None)
+        top = max(candidates, key=by_score, default=None)
         if top is None or not plausible(top, s):
             return top
         evident = max((c for c in candidates if plausible(c, s)), key=lambda c: c.rank(s.conflict_weight))
@@ -325,7 +325,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
             draws = np.random.default_rng((s.seed, i, j))
             slid = (refine(model, draws=draws) for model in slid_alternatives(pi, pj, best, s))
             candidates += [c for c in slid if c is not None and distinct(c.transform, best.transform, pi, s)]
-    candidates.sort(key=rank, reverse=True)
+    candidates.sort(key=by_score, reverse=True)
     lead = first(candidates)
     candidates.insert(0, candidates.pop(next(n for n, c in enumerate(candidates) if c is lead)))
     if s.polish and plausible(candidates[0], s):

@@ -50,7 +50,7 @@ class AcceptanceSettings:
                                       # corridor shifted by a door's spacing fills many gaps)
     max_corner_error_m: float = 0.25  # refuse placements the shared walls leave this uncertain at a far corner
     fringe_px: float = 1.5            # pixels: contradictions this close to the other's unknown area do not count
-    conflict_weight: float = 10.0     # placements rank by support - conflict_weight * conflicts (Placement.rank)
+    conflict_weight: float = 10.0     # placements score support - conflict_weight * conflicts (Placement.score, .rank)
     ambiguity_ratio: float = 0.8      # a distinct placement with this share of the best score -> ambiguous
     distinct_degrees: float = 5.0     # placements further apart than this are distinct
     distinct_metres: float = 1.0
