@@ -397,11 +397,13 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
                   out_rows: Optional[List[dict]] = None, reverse: bool = False, shuffle: Optional[int] = None) -> int:
     """Each generated scenario: made if missing, merged by merge_maps -v --seed `seed` (its own process; with
     `reverse`, its maps given in reverse order; with `shuffle`, in an order drawn with that seed), scored; one row
-    each (also appended to `out_rows`), the median and worst estimation, then why each mergeable map left out or
+    each (also appended to `out_rows`), the median and worst estimation, how many mergeable maps the acceptance rules
+    hold together at their true places and how many of those are placed right (merge_diagnosis.evidence: a map whose
+    true place passes no rule is left out by any estimation that keeps them), then why each mergeable map left out or
     placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
     and the final union), and in a merge with maps placed wrong, which healthy members contradict each other."""
     import make_sample_maps
-    from merge_diagnosis import cause_counts, contradicting_members, diagnose, replay, verdict_lines
+    from merge_diagnosis import cause_counts, contradicting_members, diagnose, evidence, replay, verdict_lines
     rows, notes, verdicts_all, status = [], [], [], 0
     replayed: Dict[str, int] = {}
     for name in names:
@@ -429,7 +431,14 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
             continue
         verdicts = diagnose(log.read_text(), scored, truth)
         verdicts_all += verdicts
-        notes += verdict_lines(name, verdicts, [m['file'] for m in truth['maps']])
+        files = [m['file'] for m in truth['maps']]
+        held = evidence(folder, truth)
+        notes += [line + (f'; without evidence at the truth, its strongest link refused {held.without[v.map_index]}'
+                          if v.map_index in held.without else '')
+                  for v, line in zip(verdicts, verdict_lines(name, verdicts, files))]
+        right = {p['file'].rsplit('/', 1)[-1] for p in scored['placements'] if p['ok'] and p['mergeable']} \
+            | {(scored.get('reference') or '').rsplit('/', 1)[-1]}   # the reference is placed by definition
+        in_evidence = {files[k] for k in set(held.held) & set(truth['mergeable'])}
         if scored['wrong']:
             # a group placed by a wrong link: where it meets the rest, its members contradict those there
             notes += contradicting_members(folder, truth, result_dir)
@@ -443,7 +452,8 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         t = (scored['estimate_ms'] or 0.0) / 1000
         left = sum(v.outcome == 'left out' for v in verdicts)
         rows.append({'name': name, 'pattern': pattern, 'mergeable': scored['mergeable'], 'correct': scored['correct'],
-                     'wrong': scored['wrong'], 'left': left, 'broken_ok': scored['broken_ok'], 't': t})
+                     'wrong': scored['wrong'], 'left': left, 'broken_ok': scored['broken_ok'], 't': t,
+                     'held': len(in_evidence), 'held_right': len(in_evidence & right)})
         if out_rows is not None:
             out_rows.append(rows[-1])
     done = [r for r in rows if isinstance(r, dict)]
@@ -464,6 +474,9 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         lines += ['', f"- placed right {sum(r['correct'] for r in done)} of {sum(r['mergeable'] for r in done)} "
                       f"mergeable maps in {len(done)} buildings ({sum(r['correct'] == r['mergeable'] for r in done)} "
                       f"buildings complete); false merges {sum(r['wrong'] for r in done)}",
+                  f"- at their true places the acceptance rules hold {sum(r['held'] for r in done)} of the mergeable "
+                  f"maps together (merge_diagnosis.evidence); placed right {sum(r['held_right'] for r in done)} of "
+                  f"those",
                   f"- estimation median {statistics.median(times):.2f} s, worst {worst['t']:.2f} s ({worst['name']})"
                   f" (targets {LARGE36_TARGET_S:.0f} s and {2 * LARGE36_TARGET_S:.0f} s)"]
     counts = cause_counts(verdicts_all)
@@ -524,8 +537,9 @@ def main() -> int:
     ap.add_argument('--generated', metavar='NAMES', nargs='?', const='buildings',
                     help='generated scenarios, made into CACHE/NAME if missing (--large36 CACHE, default out/bench; '
                          'under a minute each), one merge_maps -v process each: a row per scenario (placed right, '
-                         'false merges, estimation time), the median and worst, and why each mergeable map is left '
-                         'out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
+                         'false merges, estimation time), the median and worst, the mergeable maps the acceptance '
+                         'rules hold together at their true places and how many of those are placed right, and why '
+                         'each mergeable map is left out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
                          'large36_b.._d, <kind>36 for every building kind, <kind>36_u and <kind>36_v the held-out '
                          'ones), unseen: every <kind>36_u, unseen2: every <kind>36_v, large: large36 to large36_d, '
                          'or none: every <kind>36')

@@ -10,6 +10,7 @@ accepted lines tells which group each map ended in; a mergeable map the result l
 """
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import re
@@ -244,6 +245,115 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
         lines.append((f"  - {files[k][:-5]} again ({label}): {'; '.join(said) or 'no right-placed map overlaps it'}"
                       f"{union_line}", label))
     return lines
+
+
+# ------------------------------------------------------------------------------------------ evidence at the truth
+# "Mergeable" (make_sample_maps.OVERLAP_DEFINITION) counts known area in common, free floor included. The estimator
+# places a map on the walls it shares: a map whose true place passes no acceptance rule against the maps it overlaps,
+# nor against their union, is left out by any placement that needs that evidence (generated maze36: map_30 shares
+# 12 m2 with map_24 and 19 agreeing wall cells, where a pair needs 100).
+
+@dataclass
+class Evidence:
+    held: List[int]                  # the healthy maps the rules hold together at their true places, largest set
+    without: Dict[int, str] = field(default_factory=dict)   # the other mergeable maps: their best link refused
+
+
+def evidence(folder: Path, truth: dict) -> Evidence:
+    """The healthy maps that the acceptance rules hold together at their true places: linked by pairs whose true
+    placement passes every rule of a pair (verify.refusal) in either direction; then, as the estimation's groups join,
+    a set so linked joins the one holding most mergeable maps where the union of its maps, placed at the truth,
+    passes the rules onto that one's union, and two other sets join where the smaller's union passes onto the
+    larger's, until none joins. For each mergeable map left outside, why its strongest link is refused. What no
+    rule could place is left out by an estimation that keeps its rules (unless by broken maps, left out here)."""
+    from multirobot_map_merge import transforms as tf
+    from multirobot_map_merge.compose import compose
+    from multirobot_map_merge.estimation.features import prepare
+    from multirobot_map_merge.estimation.settings import EstimationSettings
+    from multirobot_map_merge.estimation.verify import refusal, verify
+    from multirobot_map_merge.mapio import load_map
+    s = EstimationSettings()
+    ms = truth['maps']
+    healthy = [k for k, m in enumerate(ms) if not m['broken']]
+    grids = {k: load_map(str(folder / ms[k]['file'])) for k in healthy}
+    res = max(min(g.resolution for g in grids.values()), s.min_work_resolution)
+    pose = {k: tf.rigid(*ms[k]['pose']) for k in healthy}
+    prepared = {k: prepare(grids[k], res, None) for k in healthy}
+    shared = truth['overlap']['shared_m2']
+
+    def judged(pi, pj, a_to_b: np.ndarray, onto_union: bool):
+        c = verify(pi, pj, tf.inverse(pj.px_to_map) @ a_to_b @ pi.px_to_map, s)
+        return c, refusal(c, pi, pj, s, onto_union)
+
+    parent = {k: k for k in healthy}
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            k = parent[k]
+        return k
+    best: Dict[int, tuple] = {}     # map -> (support, why) of its strongest refused link
+    for n, a in enumerate(healthy):
+        for b in healthy[n + 1:]:
+            if shared[a][b] < s.min_overlap_m2 or prepared[a] is None or prepared[b] is None:
+                continue
+            c, why = judged(prepared[a], prepared[b], tf.inverse(pose[b]) @ pose[a], False)
+            if why:
+                c2, why2 = judged(prepared[b], prepared[a], tf.inverse(pose[a]) @ pose[b], False)
+                if not why2:
+                    c, why = c2, why2
+            if not why:
+                parent[root(a)] = root(b)
+                continue
+            for k, other in ((a, b), (b, a)):
+                if c.support > best.get(k, (-1,))[0]:
+                    best[k] = (c.support, f'with {ms[other]["file"][:-5]}: {why}')
+    sets: Dict[int, List[int]] = {}
+    for k in healthy:
+        sets.setdefault(root(k), []).append(k)
+    mergeable = set(truth.get('mergeable', healthy))
+    groups = sorted(sets.values(), key=lambda g: (-len(mergeable.intersection(g)), -len(g)))
+    held, rest = groups[0], groups[1:]
+
+    unions: Dict[tuple, object] = {}
+
+    def union(members: List[int]):
+        # in the world frame: each map at its true pose
+        key = tuple(sorted(members))
+        if key not in unions:
+            g = compose([grids[k] for k in key], [pose[k] for k in key], res)
+            unions[key] = prepare(g, res, None) if g is not None else None
+        return unions[key]
+
+    def joins(small: List[int], big: List[int], note: bool) -> bool:
+        part, onto = union(small), union(big)
+        if part is None or onto is None:
+            return False
+        c, why = judged(part, onto, np.eye(3), True)
+        for k in small if note and why else ():
+            if c.support > best.get(k, (-1,))[0]:
+                best[k] = (c.support, f'{"its set of " + str(len(small)) + " maps" if len(small) > 1 else "alone"} '
+                                      f'onto the union of the {len(big)} held: {why}')
+        return not why
+    changed = True
+    while changed and rest:
+        # sets join the held one, or each other (two groups' unions), as the estimation's groups do
+        changed = False
+        for g in rest:
+            if joins(g, held, True):
+                held = held + g
+                rest.remove(g)
+                changed = True
+                break
+        for a, b in itertools.combinations(rest, 2) if not changed else ():
+            small, big = sorted((a, b), key=len)
+            if joins(small, big, False):
+                rest.remove(a)
+                rest.remove(b)
+                rest.append(big + small)
+                changed = True
+                break
+    return Evidence(sorted(held), {k: best.get(k, (0, 'no map overlaps it by the area a pair needs'))[1]
+                                   for k in sorted(mergeable - set(held))})
 
 
 # ---------------------------------------------------------------------------------- members that contradict each other

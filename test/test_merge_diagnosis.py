@@ -139,3 +139,29 @@ def test_healthy_members_that_contradict_each_other_in_the_merge_are_named(repo_
         @ tf.translation(-centre[0], -centre[1])
     lines = merged(turn @ true_robot)
     assert len(lines) == 1 and 'contradicts' in lines[0], lines
+
+
+def test_maps_whose_true_places_pass_no_rule_are_told_apart_from_those_an_estimation_could_place(repo_root):
+    """merge_diagnosis.evidence: two maps of a warehouse (test/data/warehouse_rack_slide) at their true places are
+    held together by the rules of a pair, and by the rules onto a union where the truth's overlap figures skip the
+    pair; with a 'truth' that places one of them 3 m off, no rule holds it, and the refusal is given."""
+    import json
+    import math
+    from merge_diagnosis import evidence
+    folder = repo_root / 'test' / 'data' / 'warehouse_rack_slide'
+    truth = json.loads((folder / 'truth.json').read_text())
+
+    def judged(shared_m2: float, robot_shift_m: float = 0.0):
+        maps = [dict(m, broken=False) for m in truth['maps']]
+        x, y, yaw = maps[0]['pose']
+        maps[0]['pose'] = [x + robot_shift_m * math.cos(yaw), y + robot_shift_m * math.sin(yaw), yaw]
+        return evidence(folder, {'maps': maps, 'mergeable': [0, 1],
+                                 'overlap': {'shared_m2': [[0.0, shared_m2], [shared_m2, 0.0]]}})
+
+    right = judged(100.0)
+    assert right.held == [0, 1] and right.without == {}
+    assert judged(0.0).held == [0, 1]   # no pair judged: the map joins the other's union
+    off = judged(100.0, 3.0)
+    assert len(off.held) == 1 and len(off.without) == 1
+    (why,) = off.without.values()
+    assert 'agreement' in why or 'contradicting' in why, why
