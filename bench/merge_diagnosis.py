@@ -291,7 +291,7 @@ def evidence(folder: Path, truth: dict) -> Evidence:
         while parent[k] != k:
             k = parent[k]
         return k
-    best: Dict[int, tuple] = {}     # map -> (support, why) of its strongest refused link
+    refused: Dict[tuple, tuple] = {}    # (a, b) -> (support, why) of a pair refused at the truth
     for n, a in enumerate(healthy):
         for b in healthy[n + 1:]:
             if shared[a][b] < s.min_overlap_m2 or prepared[a] is None or prepared[b] is None:
@@ -303,10 +303,8 @@ def evidence(folder: Path, truth: dict) -> Evidence:
                     c, why = c2, why2
             if not why:
                 parent[root(a)] = root(b)
-                continue
-            for k, other in ((a, b), (b, a)):
-                if c.support > best.get(k, (-1,))[0]:
-                    best[k] = (c.support, f'with {ms[other]["file"][:-5]}: {why}')
+            else:
+                refused[a, b] = refused[b, a] = (c.support, why)
     sets: Dict[int, List[int]] = {}
     for k in healthy:
         sets.setdefault(root(k), []).append(k)
@@ -324,36 +322,41 @@ def evidence(folder: Path, truth: dict) -> Evidence:
             unions[key] = prepare(g, res, None) if g is not None else None
         return unions[key]
 
-    def joins(small: List[int], big: List[int], note: bool) -> bool:
+    def refusal_onto(small: List[int], big: List[int]) -> str:
         part, onto = union(small), union(big)
         if part is None or onto is None:
-            return False
-        c, why = judged(part, onto, np.eye(3), True)
-        for k in small if note and why else ():
-            if c.support > best.get(k, (-1,))[0]:
-                best[k] = (c.support, f'{"its set of " + str(len(small)) + " maps" if len(small) > 1 else "alone"} '
-                                      f'onto the union of the {len(big)} held: {why}')
-        return not why
+            return 'no known cell'
+        return judged(part, onto, np.eye(3), True)[1]
     changed = True
     while changed and rest:
         # sets join the held one, or each other (two groups' unions), as the estimation's groups do
         changed = False
         for g in rest:
-            if joins(g, held, True):
+            if not refusal_onto(g, held):
                 held = held + g
                 rest.remove(g)
                 changed = True
                 break
         for a, b in itertools.combinations(rest, 2) if not changed else ():
             small, big = sorted((a, b), key=len)
-            if joins(small, big, False):
+            if not refusal_onto(small, big):
                 rest.remove(a)
                 rest.remove(b)
                 rest.append(big + small)
                 changed = True
                 break
-    return Evidence(sorted(held), {k: best.get(k, (0, 'no map overlaps it by the area a pair needs'))[1]
-                                   for k in sorted(mergeable - set(held))})
+    without: Dict[int, str] = {}
+    for g in rest:
+        if mergeable.isdisjoint(g):
+            continue
+        why = (f'{f"its set of {len(g)} maps" if len(g) > 1 else "alone"} onto the union of the {len(held)} held: '
+               f'{refusal_onto(g, held)}')
+        links = [(refused[a, b], b) for a in g for b in held if (a, b) in refused]
+        if links:
+            (support, pair_why), b = max(links, key=lambda link: link[0][0])
+            why += f'; its strongest pair with them, with {ms[b]["file"][:-5]}: {pair_why}'
+        without.update((k, why) for k in g if k in mergeable)
+    return Evidence(sorted(held), without)
 
 
 # ---------------------------------------------------------------------------------- members that contradict each other
