@@ -263,14 +263,15 @@ def evidence(folder: Path, truth: dict) -> Evidence:
     """The healthy maps that the acceptance rules hold together at their true places: linked by pairs whose true
     placement passes every rule of a pair (verify.refusal) in either direction; then, as the estimation's groups join,
     a set so linked joins the one holding most mergeable maps where the union of its maps, placed at the truth,
-    passes the rules onto that one's union, and two other sets join where the smaller's union passes onto the
+    passes the rules onto that one's union (or only imprecision refuses it, and a member of either passes alone onto
+    the other's union: growth.joins_where_met), and two other sets join so where the smaller's union passes onto the
     larger's, until none joins. For each mergeable map left outside, why its strongest link is refused. What no
     rule could place is left out by an estimation that keeps its rules (unless by broken maps, left out here)."""
     from multirobot_map_merge import transforms as tf
     from multirobot_map_merge.compose import compose
     from multirobot_map_merge.estimation.features import prepare
     from multirobot_map_merge.estimation.settings import EstimationSettings
-    from multirobot_map_merge.estimation.verify import refusal, verify
+    from multirobot_map_merge.estimation.verify import IMPRECISE, refusal, verify
     from multirobot_map_merge.mapio import load_map
     s = EstimationSettings()
     ms = truth['maps']
@@ -326,7 +327,12 @@ def evidence(folder: Path, truth: dict) -> Evidence:
         part, onto = union(small), union(big)
         if part is None or onto is None:
             return 'no known cell'
-        return judged(part, onto, np.eye(3), True)[1]
+        why = judged(part, onto, np.eye(3), True)[1]
+        if why.startswith(IMPRECISE) and len(small) > 1 and len(big) > 1 and any(
+                prepared[k] is not None and not judged(prepared[k], other, pose[k], True)[1]
+                for members, other in ((small, onto), (big, part)) for k in members):
+            return ''   # a member passes alone onto the other's union where they meet (growth.joins_where_met)
+        return why
     changed = True
     while changed and rest:
         # sets join the held one, or each other (two groups' unions), as the estimation's groups do
