@@ -356,15 +356,18 @@ def building_names(arg: str) -> List[str]:
 
 def variants_table(names: List[str], per_variant: Dict[str, Dict[str, dict]]) -> List[str]:
     """The table of every building's placed right / mergeable and false merges, a column per variant (label ->
-    building -> its row of run_buildings), and a last row of the totals."""
+    building -> its row of run_buildings), and a last row of the totals; when the rows say it, a column first of the
+    mergeable maps the acceptance rules hold together at their true places (the same in every variant)."""
     labels = list(per_variant)
-    lines = ['| building | ' + ' | '.join(f'{v}: right / mergeable, false' for v in labels) + ' |',
-             '|---|' + '---|' * len(labels)]
+    held = {name: r['held'] for rows in per_variant.values() for name, r in rows.items() if 'held' in r}
+    first = ['held at the truth'] if held else []
+    lines = ['| building | ' + ' | '.join(first + [f'{v}: right / mergeable, false' for v in labels]) + ' |',
+             '|---|' + '---|' * (len(first) + len(labels))]
     for name in names:
         cells = [per_variant[v].get(name) for v in labels]
-        lines.append(f'| {name} | ' + ' | '.join('-' if c is None else f"{c['correct']}/{c['mergeable']}, {c['wrong']}"
-                                                 for c in cells) + ' |')
-    totals = []
+        scores = ['-' if c is None else f"{c['correct']}/{c['mergeable']}, {c['wrong']}" for c in cells]
+        lines.append(f'| {name} | ' + ' | '.join(([str(held.get(name, '-'))] if held else []) + scores) + ' |')
+    totals = [str(sum(held.values()))] if held else []
     for v in labels:
         done = list(per_variant[v].values())
         totals.append(f"{sum(r['correct'] for r in done)}/{sum(r['mergeable'] for r in done)}, "
@@ -539,10 +542,10 @@ def main() -> int:
                          'under a minute each), one merge_maps -v process each: a row per scenario (placed right, '
                          'false merges, estimation time), the median and worst, the mergeable maps the acceptance '
                          'rules hold together at their true places and how many of those are placed right, and why '
-                         'each mergeable map is left out or placed wrong. NAMES: comma-separated (make_sample_maps.py GENERATED: large36, '
-                         'large36_b.._d, <kind>36 for every building kind, <kind>36_u and <kind>36_v the held-out '
-                         'ones), unseen: every <kind>36_u, unseen2: every <kind>36_v, large: large36 to large36_d, '
-                         'or none: every <kind>36')
+                         'each mergeable map is left out or placed wrong. NAMES: comma-separated '
+                         '(make_sample_maps.py GENERATED: large36, large36_b.._d, <kind>36 for every building kind, '
+                         '<kind>36_u and <kind>36_v the held-out ones), unseen: every <kind>36_u, unseen2: every '
+                         '<kind>36_v, large: large36 to large36_d, or none: every <kind>36')
     ap.add_argument('--replay', action='store_true',
                     help='with --generated: match each mergeable map not placed right again, against the right-placed '
                          'maps it overlaps most and against the merged map, each verdict checked with the truth '

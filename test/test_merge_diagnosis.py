@@ -106,6 +106,14 @@ def test_the_table_of_several_orders_or_seeds_has_a_column_each_and_their_totals
     lines = variants_table(['a36', 'b36'], per_variant)
     assert lines[0] == '| building | order 3: right / mergeable, false | order 4: right / mergeable, false |'
     assert lines[2:] == ['| a36 | 27/27, 0 | 25/27, 0 |', '| b36 | 17/27, 9 | - |', '| all | 44/54, 9 | 25/27, 0 |']
+    # with the maps the rules hold at the truth (merge_diagnosis.evidence), a column of them first
+    for rows in per_variant.values():
+        for r in rows.values():
+            r['held'] = {'a36': 27, 'b36': 25}[r['name']]
+    lines = variants_table(['a36', 'b36'], per_variant)
+    assert lines[0].startswith('| building | held at the truth | order 3')
+    assert lines[2:] == ['| a36 | 27 | 27/27, 0 | 25/27, 0 |', '| b36 | 25 | 17/27, 9 | - |',
+                         '| all | 52 | 44/54, 9 | 25/27, 0 |']
 
 
 def test_healthy_members_that_contradict_each_other_in_the_merge_are_named(repo_root, tmp_path):
