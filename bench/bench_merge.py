@@ -436,7 +436,7 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
         verdicts_all += verdicts
         files = [m['file'] for m in truth['maps']]
         held = evidence(folder, truth)
-        notes += [line + (f'; without evidence at the truth, its strongest link refused {held.without[v.map_index]}'
+        notes += [line + (f'; without evidence at the truth: {held.without[v.map_index]}'
                           if v.map_index in held.without else '')
                   for v, line in zip(verdicts, verdict_lines(name, verdicts, files))]
         right = {p['file'].rsplit('/', 1)[-1] for p in scored['placements'] if p['ok'] and p['mergeable']} \
