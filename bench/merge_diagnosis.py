@@ -16,7 +16,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
 
@@ -64,8 +64,8 @@ def parse_matches(log_text: str) -> List[Match]:
     return out
 
 
-def groups_of(matches: List[Match], n: int) -> List[int]:
-    """The group (a representative index) each grid ends in, replaying the accepted matches in order."""
+def linked(n: int, links: Iterable[Tuple[int, int]]) -> List[int]:
+    """The set (a representative index) each of n indices ends in, joining the two of every link."""
     parent = list(range(n))
 
     def root(a: int) -> int:
@@ -73,10 +73,14 @@ def groups_of(matches: List[Match], n: int) -> List[int]:
             parent[a] = parent[parent[a]]
             a = parent[a]
         return a
-    for m in matches:
-        if m.accepted and m.k < n and m.seed < n:
-            parent[root(m.k)] = root(m.seed)
+    for a, b in links:
+        parent[root(a)] = root(b)
     return [root(a) for a in range(n)]
+
+
+def groups_of(matches: List[Match], n: int) -> List[int]:
+    """The group (a representative index) each grid ends in, replaying the accepted matches in order."""
+    return linked(n, ((m.k, m.seed) for m in matches if m.accepted and m.k < n and m.seed < n))
 
 
 def _summary(tries: List[Match]) -> str:
@@ -286,12 +290,7 @@ def evidence(folder: Path, truth: dict) -> Evidence:
         c = verify(pi, pj, tf.inverse(pj.px_to_map) @ a_to_b @ pi.px_to_map, s)
         return c, refusal(c, pi, pj, s, onto_union)
 
-    parent = {k: k for k in healthy}
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            k = parent[k]
-        return k
+    links: List[Tuple[int, int]] = []    # pairs whose true placement passes
     refused: Dict[tuple, tuple] = {}    # (a, b) -> (support, why) of a pair refused at the truth
     for n, a in enumerate(healthy):
         for b in healthy[n + 1:]:
@@ -303,12 +302,13 @@ def evidence(folder: Path, truth: dict) -> Evidence:
                 if not why2:
                     c, why = c2, why2
             if not why:
-                parent[root(a)] = root(b)
+                links.append((a, b))
             else:
                 refused[a, b] = refused[b, a] = (c.support, why)
+    root = linked(len(ms), links)
     sets: Dict[int, List[int]] = {}
     for k in healthy:
-        sets.setdefault(root(k), []).append(k)
+        sets.setdefault(root[k], []).append(k)
     mergeable = set(truth.get('mergeable', healthy))
     groups = sorted(sets.values(), key=lambda g: (-len(mergeable.intersection(g)), -len(g)))
     held, rest = groups[0], groups[1:]
@@ -359,7 +359,7 @@ def evidence(folder: Path, truth: dict) -> Evidence:
                f'{refusal_onto(g, held)}')
         links = [(refused[a, b], b) for a in g for b in held if (a, b) in refused]
         if links:
-            (support, pair_why), b = max(links, key=lambda link: link[0][0])
+            (_, pair_why), b = max(links, key=lambda link: link[0][0])
             why += f'; its strongest pair with them, with {ms[b]["file"][:-5]}: {pair_why}'
         without.update((k, why) for k in g if k in mergeable)
     return Evidence(sorted(held), without)
