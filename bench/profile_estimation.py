@@ -21,7 +21,7 @@ grid's keypoints are detected in the first match that needs them); the CPU of th
 and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted,
 or the reason of the refusal) and whether a correlation search ran; and the matches made again: a grid onto a grid
 or a group (by its seed) that it was matched onto before in the estimation in the same way (by descriptors alone, or
-with a correlation search), the group's union grown since; and for a generated building (a truth.json beside the maps)
+with a correlation search), the group's union grown since, in all and by kind; and for a generated building (a truth.json beside the maps)
 the CPU of the matches of its broken maps, of the maps placed, of the mergeable maps left out and of the maps that
 are not mergeable (by the grid matched, group matches aside).
 With --cores it prints only the CPU of a serial estimation and of one with its defaults, neither under the profiler:
@@ -121,7 +121,8 @@ if kinds:
     verdicts = collections.defaultdict(lambda: [0, 0.0, 0.0])
     searching = [0, 0.0]   # correlation searches of the match being made, their CPU s
     seen = set()   # (grid, grid or group seed, searched) of the matches so far
-    again = collections.defaultdict(lambda: [0, 0, 0.0])   # searched -> matches made again, accepted, CPU s
+    # (searched, kind) -> matches made again, accepted, CPU s
+    again = collections.defaultdict(lambda: [0, 0, 0.0])
     of_grid = collections.defaultdict(lambda: [0, 0.0])   # grid matched (not a group's union) -> matches, CPU s
     correlate = pair.correlate_candidates
     def correlate_timed(*args, **options):
@@ -156,7 +157,7 @@ if kinds:
         row[2] += searching[1]
         made = (i, j, searching[0] > 0)
         if made in seen:   # the same work again: the grid onto the same grid, or the same group's union grown since
-            row = again[searching[0] > 0]
+            row = again[(searching[0] > 0, kind)]
             row[0] += 1
             row[1] += m.accepted
             row[2] += took
@@ -223,9 +224,14 @@ if kinds:
         search_s = sum(v[2] for v, _ in rows)   # none where no search ran
         print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a '
               f'search ran ({{search_s:.2f}} s the search itself)')
-    for searched, (n, accepted, seconds) in sorted(again.items()):
+    for searched in sorted({{searched for searched, _ in again}}):
+        rows = sorted(((kind, v) for (s, kind), v in again.items() if s == searched), key=lambda kv: -kv[1][2])
+        n, accepted, seconds = (sum(v[n] for _, v in rows) for n in range(3))
         print(f'  made again onto the same grid or group, {{"searched" if searched else "descriptors only":16s}} '
               f'{{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU {{100 * seconds / cpu:5.1f}} %')
+        for kind, (n, accepted, seconds) in rows:
+            print(f'    {{kind:54s}} {{n:4d}} matches, {{accepted:3d}} accepted, {{seconds:6.2f}} s CPU '
+                  f'{{100 * seconds / cpu:5.1f}} %')
     truth_file = os.path.join({maps!r}, 'truth.json')
     if os.path.exists(truth_file):
         # a generated building: the matches of its broken maps (never placed right), of the maps placed and of the
