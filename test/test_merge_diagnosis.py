@@ -173,3 +173,20 @@ def test_maps_whose_true_places_pass_no_rule_are_told_apart_from_those_an_estima
     assert len(off.held) == 1 and len(off.without) == 1
     (why,) = off.without.values()
     assert 'agreement' in why or 'contradicting' in why, why
+    assert right.narrowly == [] and off.narrowly == []   # held with a margin, or not held at all
+
+
+def test_maps_held_only_at_the_edge_of_a_rule_are_told_apart(repo_root):
+    """merge_diagnosis.evidence's margin: the two maps of test/data/warehouse_rack_slide, held together at their true
+    places by 109 m2 in common, are held as firmly by rules asking the same (a margin of 1), and only narrowly by
+    rules asking ten times the support and common area and a tenth of the uncertainty."""
+    import json
+    from merge_diagnosis import evidence
+    folder = repo_root / 'test' / 'data' / 'warehouse_rack_slide'
+    truth = json.loads((folder / 'truth.json').read_text())
+    truth = {'maps': [dict(m, broken=False) for m in truth['maps']], 'mergeable': [0, 1],
+             'overlap': {'shared_m2': [[0.0, 109.0], [109.0, 0.0]]}}
+    assert evidence(folder, truth, margin=None).narrowly == []
+    assert evidence(folder, truth, margin=1.0).narrowly == []
+    strict = evidence(folder, truth, margin=10.0)
+    assert strict.held == [0, 1] and len(strict.narrowly) == 1
