@@ -357,17 +357,27 @@ def building_names(arg: str) -> List[str]:
 def variants_table(names: List[str], per_variant: Dict[str, Dict[str, dict]]) -> List[str]:
     """The table of every building's placed right / mergeable and false merges, a column per variant (label ->
     building -> its row of run_buildings), and a last row of the totals; when the rows say it, a column first of the
-    mergeable maps the acceptance rules hold together at their true places (the same in every variant)."""
+    mergeable maps the acceptance rules hold together at their true places (the same in every variant), with how
+    many of them only narrowly (merge_diagnosis.NARROW_MARGIN: placed or left out as small changes of the estimates
+    have it)."""
     labels = list(per_variant)
     held = {name: r['held'] for rows in per_variant.values() for name, r in rows.items() if 'held' in r}
+    narrowly: Dict[str, int] = {}
+    for rows in per_variant.values():
+        for name, r in rows.items():
+            narrowly[name] = max(narrowly.get(name, 0), r.get('narrowly', 0))
+
+    def held_cell(n: int, narrow: int) -> str:
+        return f'{n} ({narrow} narrowly)' if narrow else str(n)
     first = ['held at the truth'] if held else []
     lines = ['| building | ' + ' | '.join(first + [f'{v}: right / mergeable, false' for v in labels]) + ' |',
              '|---|' + '---|' * (len(first) + len(labels))]
     for name in names:
         cells = [per_variant[v].get(name) for v in labels]
         scores = ['-' if c is None else f"{c['correct']}/{c['mergeable']}, {c['wrong']}" for c in cells]
-        lines.append(f'| {name} | ' + ' | '.join(([str(held.get(name, '-'))] if held else []) + scores) + ' |')
-    totals = [str(sum(held.values()))] if held else []
+        first_cell = [held_cell(held[name], narrowly[name]) if name in held else '-'] if held else []
+        lines.append(f'| {name} | ' + ' | '.join(first_cell + scores) + ' |')
+    totals = [held_cell(sum(held.values()), sum(narrowly.values()))] if held else []
     for v in labels:
         done = list(per_variant[v].values())
         totals.append(f"{sum(r['correct'] for r in done)}/{sum(r['mergeable'] for r in done)}, "

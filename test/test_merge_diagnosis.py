@@ -114,6 +114,12 @@ def test_the_table_of_several_orders_or_seeds_has_a_column_each_and_their_totals
     assert lines[0].startswith('| building | held at the truth | order 3')
     assert lines[2:] == ['| a36 | 27 | 27/27, 0 | 25/27, 0 |', '| b36 | 25 | 17/27, 9 | - |',
                          '| all | 52 | 44/54, 9 | 25/27, 0 |']
+    # and how many of those only narrowly (merge_diagnosis.NARROW_MARGIN)
+    for r in per_variant['order 3'].values():
+        r['narrowly'] = {'a36': 0, 'b36': 12}[r['name']]
+    lines = variants_table(['a36', 'b36'], per_variant)
+    assert lines[2:] == ['| a36 | 27 | 27/27, 0 | 25/27, 0 |', '| b36 | 25 (12 narrowly) | 17/27, 9 | - |',
+                         '| all | 52 (12 narrowly) | 44/54, 9 | 25/27, 0 |']
 
 
 def test_healthy_members_that_contradict_each_other_in_the_merge_are_named(repo_root, tmp_path):
