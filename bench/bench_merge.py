@@ -413,9 +413,10 @@ def run_buildings(names: List[str], cache: Path, markdown: Optional[Path], again
     each (also appended to `out_rows`), the median and worst estimation, how many mergeable maps the acceptance rules
     hold together at their true places and how many of those are placed right (merge_diagnosis.evidence: a map whose
     true place passes no rule is left out by any estimation that keeps them), and of those, the maps held only
-    narrowly (NARROW_MARGIN: placed or left out as a little change of the estimates has it), then why each mergeable map left out or
-    placed wrong is so (merge_diagnosis; with again, each such map is also matched again against right-placed maps
-    and the final union), and in a merge with maps placed wrong, which healthy members contradict each other."""
+    narrowly (NARROW_MARGIN: placed or left out as a little change of the estimates has it), then why each mergeable
+    map left out or placed wrong is so (merge_diagnosis; with again, each such map is also matched again against
+    right-placed maps and the final union), and in a merge with maps placed wrong, which healthy members contradict
+    each other."""
     import make_sample_maps
     from merge_diagnosis import (NARROW_MARGIN, cause_counts, contradicting_members, diagnose, evidence, replay,
                                  verdict_lines)

@@ -192,7 +192,7 @@ def replay(folder: Path, truth: dict, scored: dict, result_dir: Path, verdicts: 
     from multirobot_map_merge.estimation.pair import match_pair
     from multirobot_map_merge.estimation.settings import EstimationSettings
     from multirobot_map_merge.mapio import load_map
-    s = settings if settings is not None else EstimationSettings()
+    s = EstimationSettings()
     ms = truth['maps']
     files = [m['file'] for m in ms]
     ok = {p['file'].rsplit('/', 1)[-1] for p in scored['placements'] if p['ok']} | \
