@@ -196,3 +196,28 @@ def test_maps_held_only_at_the_edge_of_a_rule_are_told_apart(repo_root):
     assert evidence(folder, truth, margin=1.0).narrowly == []
     strict = evidence(folder, truth, margin=10.0)
     assert strict.held == [0, 1] and len(strict.narrowly) == 1
+
+
+def test_a_map_left_out_is_matched_again_against_the_right_placed_maps_it_overlaps(repo_root, tmp_path):
+    """merge_diagnosis.replay (bench_merge --generated --replay): map robot of test/data/warehouse_rack_slide, left
+    out, is matched again against the right-placed map it overlaps (other, 109 m2 at the truth): its best placement
+    is right, and refused beside an alias along the racks that agrees as well; without a merged map of the run, it
+    says so."""
+    import json
+    from merge_diagnosis import REPLAYED, Verdict, replay
+    from multirobot_map_merge.estimation.union import known_corners
+    from multirobot_map_merge.mapio import load_map
+    folder = repo_root / 'test' / 'data' / 'warehouse_rack_slide'
+    truth = json.loads((folder / 'truth.json').read_text())
+    maps = []
+    for m in truth['maps']:
+        grid = load_map(str(folder / m['file']))
+        maps.append(dict(m, broken=False, resolution=grid.resolution, known_bbox=known_corners(grid).tolist()))
+    truth = {'maps': maps, 'mergeable': [0, 1],
+             'overlap': {'shared_m2': [[0.0, 109.0], [109.0, 0.0]], 'fraction': [[0.0, 0.5], [0.5, 0.0]],
+                         'min_shared_m2': 4.0, 'min_fraction': 0.05}}
+    scored = {'placements': [{'file': 'other.yaml', 'ok': True}], 'reference': 'other.yaml'}
+    ((line, label),) = replay(folder, truth, scored, tmp_path, [Verdict(0, 'left out', 'support', '')])
+    assert label == REPLAYED['refused'], line
+    assert 'pair with other (109 m2): refused right' in line and 'ambiguous' in line, line
+    assert 'no merged map to match against' in line, line
