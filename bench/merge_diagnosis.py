@@ -299,35 +299,9 @@ def evidence(folder: Path, truth: dict, margin: Optional[float] = NARROW_MARGIN,
     pose = {k: tf.rigid(*ms[k]['pose']) for k in healthy}
     prepared = {k: prepare(grids[k], res, None) for k in healthy}
     shared = truth['overlap']['shared_m2']
-
-    def judged(pi, pj, a_to_b: np.ndarray, onto_union: bool):
-        c = verify(pi, pj, tf.inverse(pj.px_to_map) @ a_to_b @ pi.px_to_map, s)
-        return c, refusal(c, pi, pj, s, onto_union)
-
-    links: List[Tuple[int, int]] = []    # pairs whose true placement passes
-    refused: Dict[tuple, tuple] = {}    # (a, b) -> (support, why) of a pair refused at the truth
-    for n, a in enumerate(healthy):
-        for b in healthy[n + 1:]:
-            if shared[a][b] < s.min_overlap_m2 or prepared[a] is None or prepared[b] is None:
-                continue
-            c, why = judged(prepared[a], prepared[b], tf.inverse(pose[b]) @ pose[a], False)
-            if why:
-                c2, why2 = judged(prepared[b], prepared[a], tf.inverse(pose[a]) @ pose[b], False)
-                if not why2:
-                    c, why = c2, why2
-            if not why:
-                links.append((a, b))
-            else:
-                refused[a, b] = refused[b, a] = (c.support, why)
-    root = linked(len(ms), links)
-    sets: Dict[int, List[int]] = {}
-    for k in healthy:
-        sets.setdefault(root[k], []).append(k)
     mergeable = set(truth.get('mergeable', healthy))
-    groups = sorted(sets.values(), key=lambda g: (-len(mergeable.intersection(g)), -len(g)))
-    held, rest = groups[0], groups[1:]
-
     unions: Dict[tuple, object] = {}
+    verified: Dict[tuple, object] = {}   # (what is placed, onto what) -> its verification: the same under any rules
 
     def union(members: List[int]):
         # in the world frame: each map at its true pose
@@ -337,34 +311,68 @@ def evidence(folder: Path, truth: dict, margin: Optional[float] = NARROW_MARGIN,
             unions[key] = prepare(g, res, None) if g is not None else None
         return unions[key]
 
-    def refusal_onto(small: List[int], big: List[int]) -> str:
-        part, onto = union(small), union(big)
-        if part is None or onto is None:
-            return 'no known cell'
-        why = judged(part, onto, np.eye(3), True)[1]
-        if why.startswith(IMPRECISE) and len(small) > 1 and len(big) > 1 and any(
-                prepared[k] is not None and not judged(prepared[k], other, pose[k], True)[1]
-                for members, other in ((small, onto), (big, part)) for k in members):
-            return ''   # a member passes alone onto the other's union where they meet (growth.joins_where_met)
-        return why
-    changed = True
-    while changed and rest:
-        # sets join the held one, or each other (two groups' unions), as the estimation's groups do
-        changed = False
-        for g in rest:
-            if not refusal_onto(g, held):
-                held = held + g
-                rest.remove(g)
-                changed = True
-                break
-        for a, b in itertools.combinations(rest, 2) if not changed else ():
-            small, big = sorted((a, b), key=len)
-            if not refusal_onto(small, big):
-                rest.remove(a)
-                rest.remove(b)
-                rest.append(big + small)
-                changed = True
-                break
+    def judged(a, pi, b, pj, a_to_b: np.ndarray, rules, onto_union: bool):
+        c = verified.get((a, b))
+        if c is None:
+            c = verified[a, b] = verify(pi, pj, tf.inverse(pj.px_to_map) @ a_to_b @ pi.px_to_map, s)
+        return c, refusal(c, pi, pj, rules, onto_union)
+
+    def hold(rules):
+        """(the held set, the other sets, the pairs refused at the truth, refusal_onto) under the rules `rules`."""
+        links: List[Tuple[int, int]] = []    # pairs whose true placement passes
+        refused: Dict[tuple, tuple] = {}    # (a, b) -> (support, why) of a pair refused at the truth
+        for n, a in enumerate(healthy):
+            for b in healthy[n + 1:]:
+                if shared[a][b] < rules.min_overlap_m2 or prepared[a] is None or prepared[b] is None:
+                    continue
+                c, why = judged(a, prepared[a], b, prepared[b], tf.inverse(pose[b]) @ pose[a], rules, False)
+                if why:
+                    c2, why2 = judged(b, prepared[b], a, prepared[a], tf.inverse(pose[a]) @ pose[b], rules, False)
+                    if not why2:
+                        c, why = c2, why2
+                if not why:
+                    links.append((a, b))
+                else:
+                    refused[a, b] = refused[b, a] = (c.support, why)
+        root = linked(len(ms), links)
+        sets: Dict[int, List[int]] = {}
+        for k in healthy:
+            sets.setdefault(root[k], []).append(k)
+        groups = sorted(sets.values(), key=lambda g: (-len(mergeable.intersection(g)), -len(g)))
+        held, rest = groups[0], groups[1:]
+
+        def refusal_onto(small: List[int], big: List[int]) -> str:
+            part, onto = union(small), union(big)
+            if part is None or onto is None:
+                return 'no known cell'
+            small_key, big_key = tuple(sorted(small)), tuple(sorted(big))
+            why = judged(small_key, part, big_key, onto, np.eye(3), rules, True)[1]
+            if why.startswith(IMPRECISE) and len(small) > 1 and len(big) > 1 and any(
+                    prepared[k] is not None and not judged(k, prepared[k], key, other, pose[k], rules, True)[1]
+                    for members, key, other in ((small, big_key, onto), (big, small_key, part)) for k in members):
+                return ''   # a member passes alone onto the other's union where they meet (growth.joins_where_met)
+            return why
+        changed = True
+        while changed and rest:
+            # sets join the held one, or each other (two groups' unions), as the estimation's groups do
+            changed = False
+            for g in rest:
+                if not refusal_onto(g, held):
+                    held = held + g
+                    rest.remove(g)
+                    changed = True
+                    break
+            for a, b in itertools.combinations(rest, 2) if not changed else ():
+                small, big = sorted((a, b), key=len)
+                if not refusal_onto(small, big):
+                    rest.remove(a)
+                    rest.remove(b)
+                    rest.append(big + small)
+                    changed = True
+                    break
+        return held, rest, refused, refusal_onto
+
+    held, rest, refused, refusal_onto = hold(s)
     without: Dict[int, str] = {}
     for g in rest:
         if mergeable.isdisjoint(g):
@@ -378,10 +386,10 @@ def evidence(folder: Path, truth: dict, margin: Optional[float] = NARROW_MARGIN,
         without.update((k, why) for k in g if k in mergeable)
     narrowly: List[int] = []
     if margin is not None:
-        strict = evidence(folder, truth, None, s.replace(min_support=int(math.ceil(margin * s.min_support)),
-                                                         min_overlap_m2=margin * s.min_overlap_m2,
-                                                         max_corner_error_m=s.max_corner_error_m / margin))
-        narrowly = sorted(set(held) - set(strict.held))
+        strict = hold(s.replace(min_support=int(math.ceil(margin * s.min_support)),
+                                min_overlap_m2=margin * s.min_overlap_m2,
+                                max_corner_error_m=s.max_corner_error_m / margin))[0]
+        narrowly = sorted(set(held) - set(strict))
     return Evidence(sorted(held), without, narrowly)
 
 
