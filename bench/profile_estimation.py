@@ -18,12 +18,14 @@ the batches kept the worker processes (the share of the batches' wall time they 
 With --kinds it also prints the CPU of each kind of match in a serial estimation without the profiler (KINDS: by the
 growth's method that asked for it): how many, how many accepted, their CPU and its share of the estimation's (a
 grid's keypoints are detected in the first match that needs them); the CPU of the accepted and the refused matches,
-and of those where a correlation search ran, with the search's own; and the costliest kinds by verdict (accepted, or
-the reason of the refusal) and whether a correlation search ran; and the matches made again: a grid onto a grid or a
-group (by its seed) that it was matched onto before in the estimation in the same way (by descriptors alone, or with
-a correlation search), the group's union grown since, in all and by kind; and for a generated building (a truth.json
-beside the maps) the CPU of the matches of its broken maps, of the maps placed, of the mergeable maps left out and
-of the maps that are not mergeable (by the grid matched, group matches aside).
+and of those where a correlation search ran, with the search's own; the CPU of the accepted matches and the rest
+together, and half of it (what an estimation that made no refused match would take on two cores kept busy, with today's
+cost per match); and the costliest kinds by verdict (accepted, or the reason of the refusal) and whether a correlation
+search ran; and the matches made again: a grid onto a grid or a group (by its seed) that it was matched onto before in
+the estimation in the same way (by descriptors alone, or with a correlation search), the group's union grown since, in
+all and by kind; and for a generated building (a truth.json beside the maps) the CPU of the matches of its broken maps,
+of the maps placed, of the mergeable maps left out and of the maps that are not mergeable (by the grid matched, group
+matches aside).
 With --cores it prints only the CPU of a serial estimation and of one with its defaults, neither under the profiler:
 the estimating process's and its worker processes', their ratio to the serial CPU (what the processes add: the grids
 written and read, the workers' own caches, the threads of the estimating process), and the cores the estimation kept
@@ -224,6 +226,11 @@ if kinds:
         search_s = sum(v[2] for v, _ in rows)   # none where no search ran
         print(f'  {{label}}: {{all_s:.2f}} s CPU ({{100 * all_s / cpu:.0f}} %), {{searched_s:.2f}} s of it where a '
               f'search ran ({{search_s:.2f}} s the search itself)')
+        if accepted:
+            kept = all_s + rest
+    # a floor of the design's per-match costs: had it made no refused match, the accepted ones and the rest
+    print(f'  the accepted matches and the rest: {{kept:.2f}} s CPU ({{100 * kept / cpu:.0f}} %), half of it '
+          f'{{kept / 2:.2f}} s')
     for searched in sorted({{searched for searched, _ in again}}):
         rows = sorted(((kind, v) for (was, kind), v in again.items() if was == searched), key=lambda kv: -kv[1][2])
         n, accepted, seconds = [sum(v[column] for _, v in rows) for column in range(3)]
