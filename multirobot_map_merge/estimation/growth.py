@@ -41,7 +41,7 @@ from .workers import MatchCall, ParallelMatcher
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
 LEFT_OUT_SHARE = 0.5   # of a grid's known area that search_left_out's placement must share with the merge
 JOIN_EVICTIONS = 3     # members taken out of two groups whose unions refuse each other (evict_at_join), at most
-LEFT_OUT_ROUNDS = 3    # search_left_out's rounds: the searches, and again while maps join (those short of the share)
+LEFT_OUT_ROUNDS = 5    # search_left_out's rounds: the searches, and again while maps join (refused or sharing little)
 MATCH_GROWTH = 1.1     # with a memory: matched by descriptors again only once the union has grown by this factor
 SEED_PROBE = 12        # grids matched first onto a new seed (grow's probe)
 SEED_CONTRADICTED = 8  # of those, refused ones that overlap it and partly contradict it, none accepted: the seed waits
@@ -893,8 +893,13 @@ class Grower:
         While maps join, those whose placement passed the rules but shared too little are judged again there on the
         grown merge (LEFT_OUT_ROUNDS rounds in all), and searched again where it refuses them: the true place beside a
         map that just joined shares more (a generated hospital: three maps placed 29-48 m2 onto the merge, 62-94 m2
-        onto the map that joined), while an alias the new member contradicts is refused. Its refusals are kept as the
-        growth's are: at the end of an estimation afresh they vote on the members (evict_contradicted, estimator.py).
+        onto the map that joined), while an alias the new member contradicts is refused. So are the maps it refused in
+        a round where others joined searched again in the next: a map refused at an alias can have its true place
+        beside them (the generated courtyard36 seeded by map 3: map_18, refused half a turn off in the round that maps
+        8, 15 and 17 joined, shares 120 m2 with map 8 at its true place, where it joins in the next round; the
+        held-out courtyard36_v: map_12, refused again after maps 2 and 3 joined, is placed at agreement 1.000 once
+        maps 4, 9, 10 and 11 have joined in the next). Its refusals are kept as the growth's are: at the end of an
+        estimation afresh they vote on the members (evict_contradicted, estimator.py).
         Called again, it searches a grid searched before only where the verdict can have changed: its placement
         passed the pair rules and the members have changed since, or a member has left that its matches saw or its
         last placement overlaps, or any member has left and its last search found no place (nothing on
@@ -992,16 +997,20 @@ class Grower:
             # a map that just joined: judged again there on the grown merge, and searched again where that merge
             # refuses it (an alias that a map that joined contradicts)
             waiting = sorted(k for k in self.left_out_accepted if k not in group.members)
-            if not joining or not waiting:
+            # a grid refused in this round did not see the maps that joined in it: its true place can be beside them
+            refused_here = sorted(m.i for m in matches
+                                  if m.i not in self.left_out_accepted and m.i not in group.members)
+            if not joining or not (waiting or refused_here):
                 break
             if self._spent():
-                self.postponed += 1   # the maps waiting are judged again in a later estimation
+                # the maps waiting are judged again in a later estimation (those refused here had their search)
+                self.postponed += bool(waiting)
                 break
             union = group.union.prepared()
             placed = [m for m in (self._placed_again(self.left_out_matches[k], union) for k in waiting)
                       if m is not None]
             again = {m.i for m in placed}
-            todo = [k for k in waiting if k not in again]
+            todo = [k for k in waiting if k not in again] + refused_here
         if todo or joined:
             self.left_out_members = members   # the members its last searches saw
         return joined
