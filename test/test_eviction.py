@@ -278,7 +278,16 @@ def test_a_map_left_out_that_a_member_of_the_growth_alone_contradicts_votes_it_o
     assert grower.search_left_out(group) == 1 and sorted(group.members) == [0, 1, 2, 4]
 
 
-def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined():
+def _left_out_searched(grids, rounds, monkeypatch):
+    """(grower, group): the merge of grids 0, 1 and 2 after search_left_out in at most `rounds` rounds."""
+    from multirobot_map_merge.estimation import growth
+    monkeypatch.setattr(growth, 'LEFT_OUT_ROUNDS', rounds)
+    grower, group = _merge_of(grids, [0, 1, 2])
+    grower.search_left_out(group)
+    return grower, group
+
+
+def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined(monkeypatch):
     """search_left_out: a map whose search placed it right, but sharing too little with the merge, is searched again
     once a map beside it joined the merge, and joins; with one search each it stays out."""
     from multirobot_map_merge.estimation import growth
@@ -286,18 +295,13 @@ def test_a_map_short_of_the_share_is_searched_again_once_a_map_beside_it_joined(
     grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 60, 210),
              seen(world, 140, 230)]
     for rounds, joined in ((1, [0, 1, 2, 3]), (growth.LEFT_OUT_ROUNDS, [0, 1, 2, 3, 4])):
-        saved, growth.LEFT_OUT_ROUNDS = growth.LEFT_OUT_ROUNDS, rounds
-        try:
-            grower, group = _merge_of(grids, [0, 1, 2])
-            grower.search_left_out(group)
-        finally:
-            growth.LEFT_OUT_ROUNDS = saved
+        grower, group = _left_out_searched(grids, rounds, monkeypatch)
         assert sorted(group.members) == joined
     rot, shift = tf.difference(group.members[4], np.eye(3), np.array([[0.0, 0.0], [15.0, 10.0]]))
     assert rot < 0.01 and shift < 0.1
 
 
-def test_a_map_refused_onto_the_merge_is_searched_again_once_a_map_beside_it_joined():
+def test_a_map_refused_onto_the_merge_is_searched_again_once_a_map_beside_it_joined(monkeypatch):
     """search_left_out: a map refused onto the merge (too little in common with it: a half-turn alias of the hall
     scores higher) is searched again in the next round once maps that overlap it joined in this one, and joins; with
     one search each it stays out (the generated courtyard36 seeded by map 3: map_18, refused beside an alias in the
@@ -308,12 +312,7 @@ def test_a_map_refused_onto_the_merge_is_searched_again_once_a_map_beside_it_joi
     grids = [seen(world, 0, 170), seen(world, 0, 120), seen(world, 20, 150), seen(world, 60, 210),
              seen(world, 166, 250), seen(world, 100, 230)]
     for rounds, joined in ((1, [0, 1, 2, 3, 5]), (growth.LEFT_OUT_ROUNDS, [0, 1, 2, 3, 4, 5])):
-        saved, growth.LEFT_OUT_ROUNDS = growth.LEFT_OUT_ROUNDS, rounds
-        try:
-            grower, group = _merge_of(grids, [0, 1, 2])
-            grower.search_left_out(group)
-        finally:
-            growth.LEFT_OUT_ROUNDS = saved
+        grower, group = _left_out_searched(grids, rounds, monkeypatch)
         assert sorted(group.members) == joined
         if 4 not in joined:
             assert not grower.refused[4].accepted and 4 not in grower.left_out_accepted   # refused, not waiting
