@@ -124,8 +124,10 @@ def test_a_held_placement_that_does_not_hold_on_the_next_maps_is_not_published(r
 
 def test_a_room_placed_next_door_half_a_turn_off_is_never_published(repo_root):
     """Four maps of a live 12-robot run (seed 1): robots 3, 4 and 6 merged, robot_12's map one room with a door at
-    each end. At 7.2 sim s robot_12 fits the room next to robot_6's through a door (agreement 0.99), 179 degrees
-    from the truth; on the maps of 10.2 sim s that placement no longer holds, so it is never published."""
+    each end. At 7.2 sim s a search fits robot_12 into the room next to robot_6's through a door, 179 degrees from
+    the truth, on 0.27 of its area: agreeing 0.992 with the merge's union there, 0.981 with the members one by one.
+    It waits (growth: a search's placement on little of a map joins only where the members agree wall for wall), so
+    it is not even held; on the maps of 10.2 sim s no placement holds, and it is never published."""
     folder = repo_root / 'test' / 'data' / 'demo_room_through_door'
     meta = json.loads((folder / 'start_poses.json').read_text())
     names = meta['robots']
@@ -139,9 +141,10 @@ def test_a_room_placed_next_door_half_a_turn_off_is_never_published(repo_root):
     pipeline = MergingPipeline()
     pipeline.feed(maps('early'))
     early = pipeline.estimate(preferred_reference=0, previous=published, names=names)
-    assert early.transforms[3] is None and early.held == 1
-    held = pipeline.memory.held['robot_12'].transform
-    rot, _ = tf.difference(held, true[3], np.zeros((1, 2)))
+    assert early.transforms[3] is None and early.held == 0
+    searched = next(m for m in early.pairs if m.i == 3)
+    assert searched.searched and searched.reason.startswith('waits: a search placed it')
+    rot, _ = tf.difference(early.transforms[0] @ searched.transform_m, true[3], np.zeros((1, 2)))
     assert abs(np.degrees(rot)) > 170   # the placement that would have been published
     pipeline.feed(maps('later'))
     later = pipeline.estimate(preferred_reference=0, previous=early.transforms, names=names)
@@ -414,11 +417,13 @@ def test_a_reference_whose_map_frame_moved_gives_the_frame_to_the_published_grid
 
 def test_a_held_alias_does_not_push_a_right_robot_out_of_the_merge(repo_root):
     """The first 11 estimations of a live 12-robot run (seed 1; test/data/demo12_held_alias, a record of
-    recording.py), estimated again as the node does but without a search budget. At 25.2 sim s robots 5 and 7 fit
-    the merge 28 m along a corridor of alike rooms and are held; tracking checks them with the published robots, and
-    robot_4's check beside them failed (agreement 0.81): robots 4 and 3 left the merge for five estimations, and with
-    them what contradicted the alias. Robot 4 holds without them, they do not hold on the published maps without it:
-    the held ones are in doubt. No robot published leaves while the reference stays, none is published off."""
+    recording.py), estimated again as the node does but without a search budget. As recorded, at 25.2 sim s robots 5
+    and 7 fit the merge 28 m along a corridor of alike rooms and were held; tracking checked them with the published
+    robots, and robot_4's check beside them failed (agreement 0.81): robots 4 and 3 left the merge for five
+    estimations, and with them what contradicted the alias. Robot 4 holds without them, they do not hold on the
+    published maps without it: the held ones are in doubt. Since a search's placement on little of a map joins only
+    where the members agree wall for wall, robots 5 and 7 are not held there; robot_3 is held at an alias (over
+    5 m off) instead. No robot published leaves while the reference stays, none is published off."""
     from multirobot_map_merge.estimation.union import known_corners
     from multirobot_map_merge.recording import read_estimations
     from multirobot_map_merge.ros.params import MapMergeParams
@@ -448,7 +453,7 @@ def test_a_held_alias_does_not_push_a_right_robot_out_of_the_merge(repo_root):
         held_off |= {n for n, h in pipeline.memory.held.items()
                      if off(n, h.transform, pipeline.memory.held_reference)[1] > 5.0}
         published, reference = now, ref
-    assert {'/robot_5', '/robot_7'} <= held_off   # the case is still there: the alias was held
+    assert held_off   # the case is still there: a robot was held at an alias
     assert {'/robot_3', '/robot_4', '/robot_6', '/robot_9'} <= set(published)
 
 
