@@ -655,6 +655,73 @@ def test_a_search_placement_the_final_merge_contradicts_leaves_it(repo_root, shi
         assert set(group.members) == {0, 1, 2}, grower.refused.get(2)
 
 
+@pytest.mark.parametrize('share, shift_m, set_aside, back', [(0.2, 0.0, True, True), (0.2, 0.4, True, False),
+                                                             (0.6, 0.4, False, False)])
+def test_a_member_a_search_placed_on_little_of_its_map_is_set_aside_for_the_end_and_judged_again_at_its_place(
+        repo_root, share, shift_m, set_aside, back):
+    """Robot 2 joined by a search on `share` of its known area (at the truth, or slid by 0.4 m): on less than half
+    of it, it is taken out of the merge for the end's searches and comes back at its place only where the merge
+    passes it there and the members agree with it wall for wall (the slid one stays out); on more, it stays."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    s = EstimationSettings()
+    grower = _grower_of(grids, s)
+    group = grower.group(0)
+    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])
+    area = grower.prepared[2].known_pixels * grower.prepared[2].resolution ** 2
+    m = PairMatch(2, 0, accepted=True, searched=True,
+                  best=Placement(np.eye(3), support=300, agreement=1.0, overlap_m2=share * area))
+    m.transform_m = tf.rigid(shift_m, -shift_m, 0.0) @ tf.inverse(poses[0]) @ poses[2]
+    grower._join(group, m)
+    grower.searched.add(2)
+    weak = grower.set_aside_weak(group)
+    assert (2 not in group.members) == set_aside and (2 in grower.evicted) == set_aside
+    if not set_aside:
+        assert weak == {}
+        return
+    joined = grower.readmit_weak(group, weak)
+    assert (joined == [2]) == back and (2 in group.members) == back and (2 in grower.evicted) != back
+    if back:
+        degrees, metres = _error(group.members[2], poses, 2, 0)
+        assert degrees < 0.01 and metres < 0.01
+
+
+def test_a_place_an_earlier_match_found_as_good_keeps_a_later_placement_ambiguous(repo_root):
+    """test/data/office_alias (rooms every 8.5 m along a corridor): a 6 m band of the robot's map fits the union of 26
+    maps at several places along the corridor, and its search is refused as ambiguous. Accepted at its best place
+    later (a search whose candidates missed the others), the places that match found keep it ambiguous while one
+    still fits as well (Grower.still_ambiguous). The whole map, placed at the truth, fits nowhere else: the band's
+    places, remembered for it, do not make it ambiguous."""
+    import dataclasses
+
+    from multirobot_map_merge.estimation.pair import AMBIGUOUS
+    from multirobot_map_merge.estimation.verify import distinct
+    folder = repo_root / 'test' / 'data' / 'office_alias'
+    truth = json.loads((folder / 'truth.json').read_text())
+    robot, union = (load_map(str(folder / m['file'])) for m in truth['maps'])
+    true_m = tf.inverse(tf.rigid(*truth['maps'][1]['pose'])) @ tf.rigid(*truth['maps'][0]['pose'])
+    known = np.argwhere(robot.data >= 0)
+    middle = int(known[:, 0].min() + 0.45 * np.ptp(known[:, 0]))
+    band = np.full_like(robot.data, -1)
+    band[middle - 60:middle + 60] = robot.data[middle - 60:middle + 60]
+    s = EstimationSettings()
+    grower = _grower_of([union, Grid(band, robot.resolution, robot.origin, robot.frame_id), robot], s)
+    group = grower.group(0)
+    m = match_pair(1, 0, grower.prepared[1], group.union.prepared(), s, onto_union=True, descriptors=False,
+                   distinct_places=True)
+    assert m.reason.startswith(AMBIGUOUS), m.reason
+    grower._refused_onto(m, frozenset(group.members))
+    rival = grower.still_ambiguous(group, dataclasses.replace(m, accepted=True, reason=''))
+    assert rival is not None and distinct(rival.transform, m.best.transform, grower.prepared[1], s)
+    whole = match_pair(2, 0, grower.prepared[2], group.union.prepared(), s, onto_union=True, descriptors=False,
+                       distinct_places=True)
+    assert whole.accepted, whole.reason
+    assert _error(whole.transform_m, [np.eye(3), None, true_m], 2, 0)[1] < 0.2
+    grower.rivals[(2, 0)] = list(grower.rivals[(1, 0)])
+    assert grower.still_ambiguous(group, whole) is None
+
+
 def test_a_search_placement_the_members_near_it_leave_imprecise_stays(repo_root):
     """test/data/demo_late_group's robot_5, placed by a search onto robots 1-3: the building's wall direction, read on
     that whole union, makes it precise (0.11 m at the far corners); the members near it alone leave it 0.28-0.30 m

@@ -497,6 +497,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
         if settings.evict and grower.evict_contradicted(chosen, groups, in_no_group()):
             chosen = largest()
         if settings.search_left_out and not tracked:
+            # the members a search placed on little of their maps may be broken ones whose other part keeps out the
+            # maps placed there: set aside while the maps left out are searched, judged again at their places after
+            weak = grower.set_aside_weak(chosen)
             # the maps left out, searched onto the merge, can single out a broken member that kept them out
             for _ in range(END_EVICTIONS + 1):
                 grower.search_left_out(chosen)
@@ -506,6 +509,7 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
             if settings.evict:
                 grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
             joined = search_side_groups(grower, chosen)
+            grower.readmit_weak(chosen, weak)
             moved = search_placed_again(grower, chosen)
             if joined or moved:
                 # beside them the maps left out can share enough now; and the maps of a group that one of them was
