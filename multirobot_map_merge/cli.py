@@ -103,7 +103,7 @@ def parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                     help='match the pairs on threads of this process instead of worker processes')
     ap.add_argument('--seed', type=int, default=defaults.seed,
                     help='seed of the random sampling (RANSAC, point subsets; default %(default)s): the same maps and '
-                         'seed give the same merge')
+                         'seed give the same merge, in any order')
     ap.add_argument('-v', '--verbose', action='store_true', help='log per-pair statistics')
     return ap.parse_args(argv)
 

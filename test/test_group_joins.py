@@ -103,6 +103,9 @@ def test_two_groups_that_meet_by_one_member_join_as_that_member_would_alone(repo
     monkeypatch.setattr(pair, 'hypotheses', lambda p, q, s, rng: [
         tf.inverse(union.px_to_map) @ side_to_rest @ part.px_to_map])
     monkeypatch.setattr(pair, 'correlate_candidates', lambda *args, **kwargs: [])
+    # and refined in place: ICP's sampled walls on 15 m2 of two unions can settle 0.9 agreeing beside the truth, as
+    # they do by some draws (this case with the settings' seed 0: agreement 0.918, 0.78 m expected at the far corners)
+    monkeypatch.setattr(pair, 'icp', lambda pi, pj, model, *args, **kwargs: model)
     m = pair.match_pair(side.seed, big.seed, part, union, s, onto_union=True, between_groups=True)
     assert m.reason.startswith(IMPRECISE) and m.imprecise_only
     # merge_groups matches the smaller union (the rest's) onto the larger: this match, restated so

@@ -1024,3 +1024,19 @@ def test_the_node_estimates_its_final_maps_afresh_as_merge_maps_does(repo_root, 
     assert calls[0][1:] == (s, 0)
     assert calls[1][1:] == (s.replace(evict=True, search_left_out=True), None)
     assert all(t is not None for t in previous)
+
+
+@pytest.mark.parametrize('name', ['three_robots', 'chain3'])
+def test_the_same_maps_in_any_order_are_placed_alike_to_the_last_digit(repo_root, name):
+    """The random draws of a match (RANSAC, ICP's samples) are seeded by the grids' contents, not by their places in
+    the order they came in: the maps given in another order are placed relative to each other exactly alike."""
+    grids, _ = _sample(repo_root, name)
+    relative = []
+    for order in ([0, 1, 2], [2, 1, 0], [1, 2, 0]):
+        result = estimate([grids[k] for k in order], EstimationSettings())
+        placed = {k: result.transforms[i] for i, k in enumerate(order)}
+        relative.append({k: tf.inverse(placed[0]) @ t for k, t in placed.items()})
+    for other in relative[1:]:
+        for k in range(3):
+            assert np.allclose(other[k], relative[0][k], rtol=0.0, atol=1e-9), (k, other[k] - relative[0][k])
+

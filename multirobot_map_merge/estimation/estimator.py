@@ -437,7 +437,8 @@ def _fits_of(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cach
     """The walls fitting (relax.walls_fitting) over the pairs of the kept placements, kept and estimated afresh."""
     _, prepared = _prepared_of(grids, settings, cache or FeatureCache(), placed)
     boxes = {k: footprint(grids[k], kept[k]) for k in placed}
-    pairs = overlapping_pairs(sorted(k for k in placed if prepared[k] is not None), boxes, settings.min_overlap_m2)
+    pairs = overlapping_pairs([k for k in placed if prepared[k] is not None], boxes, settings.min_overlap_m2,
+                              key=lambda k: prepared[k].draw_key)
     return walls_fitting([{k: kept[k] for k in placed}, {k: fresh[k] for k in placed}], prepared, pairs, settings.seed)
 
 

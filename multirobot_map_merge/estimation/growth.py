@@ -359,7 +359,7 @@ class Grower:
             pairs = putative_matches(pk, pm, self.s.ratio, False, self.neighbours)
             agree = False
             if len(pairs) >= self.s.min_inliers:
-                rng = np.random.default_rng(self.s.seed + 7919 * k + m)
+                rng = np.random.default_rng((self.s.seed, pk.draw_key, pm.draw_key))
                 model, mask = ransac_rigid(pk.keypoints[pairs[:, 0]], pm.keypoints[pairs[:, 1]],
                                            self.s.ransac_threshold, self.s.ransac_iterations, rng)
                 agree = model is not None and int(mask.sum()) >= self.s.min_inliers

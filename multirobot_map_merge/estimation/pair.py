@@ -241,7 +241,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
     `neighbours` keeps descriptor distances for the matches of one estimation (neighbours.py).
     """
     result = PairMatch(i, j)
-    rng = np.random.default_rng(s.seed + 7919 * i + j)
+    rng = np.random.default_rng((s.seed, pi.draw_key, pj.draw_key))
     verified: List[Placement] = []   # one per place ICP reached
 
     def refine(model: np.ndarray, screen: bool = True, draws: Optional[np.random.Generator] = None
@@ -322,7 +322,7 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         candidates += refine_all(symmetric_alternatives(pi, pj, best), screen=False)
         if not searched:
             # other places only, refined with draws of their own: the best's place and its polish stay as they were
-            draws = np.random.default_rng((s.seed, i, j))
+            draws = np.random.default_rng((s.seed, pi.draw_key, pj.draw_key, 1))
             slid = (refine(model, draws=draws) for model in slid_alternatives(pi, pj, best, s))
             candidates += [c for c in slid if c is not None and distinct(c.transform, best.transform, pi, s)]
     candidates.sort(key=by_score, reverse=True)

@@ -72,10 +72,11 @@ DIRECTION_NOISE_M = 0.025  # a grid's wall direction off by its standard error w
 PRIOR = 1.0               # weight (in correspondences) keeping a direction no wall constrains where it was
 
 
-def overlapping_pairs(placed: Sequence[int], footprints: Dict[int, Box],
-                      min_area_m2: float = 0.0) -> List[Tuple[int, int]]:
-    """The pairs (a, b), a < b, of placed grids whose footprints overlap by min_area_m2 or more."""
-    ks = sorted(placed)
+def overlapping_pairs(placed: Sequence[int], footprints: Dict[int, Box], min_area_m2: float = 0.0,
+                      key: Optional[Callable[[int], int]] = None) -> List[Tuple[int, int]]:
+    """The pairs (a, b), a before b by `key` (by default a < b), of placed grids whose footprints overlap by
+    min_area_m2 or more."""
+    ks = sorted(placed, key=key)
     return [(a, b) for n, a in enumerate(ks) for b in ks[n + 1:]
             if overlap_area(footprints.get(a), footprints.get(b)) >= min_area_m2]
 
@@ -86,6 +87,11 @@ def _sample(p: PreparedGrid, rng: np.random.Generator) -> Tuple[np.ndarray, np.n
         pick = rng.choice(len(walls), MAX_POINTS, replace=False)
         walls, normals = walls[pick], normals[pick]
     return walls, normals
+
+
+def _draws(seed: int, p: PreparedGrid) -> np.random.Generator:
+    """The draws of a grid's sampled walls, by its content (PreparedGrid.draw_key): alike whatever its index."""
+    return np.random.default_rng((seed, p.draw_key))
 
 
 PairSamples = Dict[Tuple[int, int], Tuple[np.ndarray, np.ndarray]]   # each pair (i, j): walls of i and their normals
@@ -222,9 +228,7 @@ def walls_fitting(placements: Sequence[Dict[int, np.ndarray]], prepared: Sequenc
                   pairs: Sequence[Tuple[int, int]], seed: int = 0) -> List[int]:
     """For each set of placements (grid -> metric transform, one frame), the walls of the given pairs that fit (as
     relax counts them, on the same sampled walls): which of several estimates of the same maps fits them better."""
-    rng = np.random.default_rng(seed)
-    grids = sorted({k for ij in pairs for k in ij})
-    samples = {k: _sample(prepared[k], rng) for k in grids}
+    samples = {k: _sample(prepared[k], _draws(seed, prepared[k])) for k in {k for ij in pairs for k in ij}}
     of_pairs = {ij: samples[ij[0]] for ij in pairs}
     chunks = _chunks(pairs, of_pairs)
     return [_fits(chunks, of_pairs, prepared, placed) for placed in placements]
@@ -328,11 +332,11 @@ def relax(placed: Dict[int, np.ndarray], reference: int, grids: Sequence[Optiona
     threads of `pool`, each adding its own terms: numpy's array operations release the GIL (the final relaxation of
     large30 and radial36: 25-35 % less wall time, 5-20 % more CPU)."""
     moving = [k for k in placed if k != reference and prepared[k] is not None]
-    pairs = overlapping_pairs([k for k in placed if prepared[k] is not None], footprints, min_overlap_m2)
+    pairs = overlapping_pairs([k for k in placed if prepared[k] is not None], footprints, min_overlap_m2,
+                              key=lambda k: prepared[k].draw_key)
     if not moving or not pairs:
         return None
-    rng = np.random.default_rng(seed)
-    samples = {k: _sample(prepared[k], rng) for k in placed if prepared[k] is not None}
+    samples = {k: _sample(prepared[k], _draws(seed, prepared[k])) for k in placed if prepared[k] is not None}
     idle: set = set()   # pairs with too few of i's walls near j's at the widest radius, none nearer later
     column = {k: 3 * n for n, k in enumerate(moving)}
     directions = _Directions(placed, reference, prepared, len(column) * 3, pool)

@@ -57,8 +57,9 @@ def search_side_groups(grower, group) -> int:
     joined = 0
     tried: set = set()
     for side in sorted(grower.side_groups, key=len, reverse=True):
-        left = sorted(k for k in side if k not in group.members and k not in grower.evicted
-                      and grower.prepared[k] is not None)
+        # by content, not index: the first seeds the union (its frame), and the places are tried in this order
+        left = sorted((k for k in side if k not in group.members and k not in grower.evicted
+                       and grower.prepared[k] is not None), key=lambda k: grower.prepared[k].draw_key)
         if len(left) < 2 or frozenset(left) in tried:
             continue
         tried.add(frozenset(left))
@@ -107,7 +108,7 @@ def _places(grower, group, them) -> Iterator[Tuple[np.ndarray, str]]:
     unions by the growth's rules (merge_groups: the growth took the group apart while the merge was another, a broken
     member still in it)."""
     part, union, s = them.union.prepared(), group.union.prepared(), grower.s
-    rng = np.random.default_rng(s.seed + them.seed)
+    rng = np.random.default_rng((s.seed, part.draw_key))
     places: List[np.ndarray] = []
     for k, t in them.members.items():
         for m in (grower.left_out_matches.get(k), grower.left_out_imprecise.get(k)):

@@ -91,7 +91,7 @@ def recheck(k: int, grids: Sequence[Optional[Grid]], prepared: Sequence[Optional
         return Check(k, None, match)
     pk = prepared[k]
     prior = tf.inverse(target.px_to_map) @ placed[k] @ pk.px_to_map
-    rng = np.random.default_rng(s.seed + 7919 * k)
+    rng = np.random.default_rng((s.seed, pk.draw_key))
     candidates = [verify(pk, target, prior, s)]
     best = candidates[0]
     if refine:

@@ -132,7 +132,9 @@ class UnionMap:
         if only is not None and np.allclose(self.members[only], np.eye(3)):
             self._prepared = self.parts[only]
         else:
-            order = sorted(self.members)
+            # by content, not index: where members differ on a cell, and in the keypoints' order (RANSAC's draws
+            # pick among the matches by their places), a union holds the same whatever the grids' order
+            order = sorted(self.members, key=lambda k: self.parts[k].draw_key)
             union = compose([self.grids[k] for k in order], [self.members[k] for k in order], self.resolution)
             # the wall fields when a match first reads them: a union is also prepared for its size alone (a live
             # node's growth asks it of every estimation, whether or not a grid is matched onto it then)
