@@ -1069,7 +1069,8 @@ class Grower:
         union, no member near them contradicts them and those members, one by one, agree with them wall for wall
         (WEAK_AGREEMENT), as the growth asked of them; the others stay out. Returns those that joined again."""
         back: List[int] = []
-        waiting = dict(weak)
+        # by content, not index: each that joins changes the merge the next is judged on
+        waiting = dict(sorted(weak.items(), key=lambda kv: self.prepared[kv[0]].draw_key))
         joined = True
         while joined:
             joined = False
@@ -1120,7 +1121,7 @@ class Grower:
             return None
         part, union = self.prepared[m.i], group.union.prepared()
         to_px = lambda t: tf.inverse(union.px_to_map) @ t @ part.px_to_map   # noqa: E731
-        rng = np.random.default_rng((self.s.seed, m.i, group.seed))
+        rng = np.random.default_rng((self.s.seed, part.draw_key, union.draw_key))
         tried: List[np.ndarray] = []
         for place in found:
             px = to_px(place)
