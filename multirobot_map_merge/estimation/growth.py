@@ -1044,8 +1044,8 @@ class Grower:
         Such a member joined on a small part of its map that fits the merge wall for wall (_searched_onto_little), as
         a chain end does, and as a map broken by a SLAM failure does by its part that is right. The rest of a broken
         one lies where the merge was not known then, and contradicts every map that is placed there later: the held-out
-        hospital36_v with the draws seeded otherwise (by the maps' contents), broken map_19 searched onto a merge of 18
-        on 0.15 of its area (agreement 1.000), and the 8 maps of the wing beside it, at their true places, each
+        hospital36_v with seeds 1 and 2 of the random draws, broken map_19 searched onto a merge of 18 on 0.15 of its
+        area (agreement 1.000), and the 8 maps of the wing beside it, at their true places, each
         contradicted map_19 alone; the end's searches put them at aliases half a turn or 13-52 m off, and all 8 stayed
         out. So the maps left out are searched, and the groups taken apart placed, onto the merge without such
         members; each member is judged again afterwards at its place (readmit_weak)."""
@@ -1087,7 +1087,8 @@ class Grower:
         return back
 
     def _weak_passes(self, group: Group, k: int, place: np.ndarray) -> bool:
-        """Whether grid k joins the merge `group` at `place` (metric, its frame) by readmit_weak's rules; it joins."""
+        """Whether grid k passes readmit_weak's rules at `place` (metric, the merge's frame); if so, it joins the merge
+        `group` there."""
         c = self.passes_onto(self.prepared[k], group.union.prepared(), place)
         box = footprint(self.grids[k], place)
         agreeing, contradicting = (judge_members(k, place, group.members, group.union.footprints, box, self.prepared,
@@ -1113,18 +1114,17 @@ class Grower:
         there is none.
 
         A later search's candidates can miss such a place, or rank it lower, while it still fits as well: the held-out
-        mall36_v with the draws seeded by the maps' contents (seed 2), map_01, searched by the growth onto a merge of
-        24, was ambiguous between an alias 12.9 m along alike shops (1073 agreeing walls) and the truth (688); the end's
-        search onto the merge of 26 found the alias alone, and the map joined there with two members agreeing."""
+        mall36_v with seed 2 of the random draws, map_01, searched by the growth onto a merge of 24, was ambiguous
+        between an alias 12.9 m along alike shops (1073 agreeing walls) and the truth (688); the end's search onto the
+        merge of 26 found the alias alone, and the map joined there with two members agreeing."""
         found = self.rivals.get((m.i, group.seed))
         if not found or m.best is None:
             return None
         part, union = self.prepared[m.i], group.union.prepared()
-        to_px = lambda t: tf.inverse(union.px_to_map) @ t @ part.px_to_map   # noqa: E731
         rng = np.random.default_rng((self.s.seed, part.draw_key, union.draw_key))
         tried: List[np.ndarray] = []
         for place in found:
-            px = to_px(place)
+            px = tf.inverse(union.px_to_map) @ place @ part.px_to_map
             if not distinct(px, m.best.transform, part, self.s) or any(not distinct(px, t, part, self.s)
                                                                        for t in tried):
                 continue
