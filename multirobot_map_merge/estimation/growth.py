@@ -27,7 +27,7 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
-from .pair import AMBIGUOUS, SEARCH_POSTPONED, PairMatch, as_good
+from .pair import AMBIGUOUS, SEARCH_POSTPONED, PairMatch, accepted_at, as_good
 from .settings import EstimationSettings
 from .split import split
 from .eviction import (contradicted_members, judge_members, members_agreement, places, singled_out_together,
@@ -36,8 +36,7 @@ from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewh
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
 from .union import Box, UnionMap, footprint, overlap_area
 from .refine import icp
-from .verify import (IMPRECISE, Placement, distinct, overlap_found, pair_confidence, partly_agreeing, plausible,
-                     refusal, verify)
+from .verify import IMPRECISE, Placement, distinct, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
 
 SEARCH_GROWTH = 1.25   # a grid is searched against a union again only once the union has grown by this factor
@@ -428,19 +427,24 @@ class Grower:
         The members one by one, not the union: the union is the members resampled into the frame of the seed the
         growth started from, and at 0.99 that resampling decides, either way. classic36 seeded by map_20: map_21,
         placed 0.15 m from the truth on 0.04 of its area, agreed 0.970 with the union in map_20's frame and 0.995
-        with the three members it overlaps. Held-out maze36_v with the random draws seeded otherwise (by the maps'
-        contents, a variant): map_31, searched onto map_23's union half a turn and 37 m off the truth, agreed 0.991
+        with the three members it overlaps. Held-out maze36_v with the random draws seeded by the maps' contents:
+        map_31, searched onto map_23's union half a turn and 37 m off the truth, agreed 0.991
         with it there (28.7 m2) and 0.936 with the members one by one (at the truth 1.000); it joined, a false merge."""
         if not m.searched or self.shares_enough(m.i, m.best.overlap_m2):
             return False
-        pooled = members_agreement(m.i, m.transform_m, group.members, group.union.footprints,
-                                   footprint(self.grids[m.i], m.transform_m), self.prepared, self.s, self.judged)
+        pooled = self._members_agreement(m.i, m.transform_m, group)
         if pooled >= WEAK_AGREEMENT:
             return False
         self._wait(m, f'waits: a search placed it on {self.share_of(m.i, m.best.overlap_m2):.2f} of its area, '
                       f'the members there agreeing {pooled:.3f} ({m.best.agreement:.3f} with their union) < '
                       f'{WEAK_AGREEMENT:.2f}')
         return True
+
+    def _members_agreement(self, k: int, place: np.ndarray, group: Group) -> float:
+        """The agreement of grid k placed at `place` (metric, the group's frame) with the group's members it lands on,
+        each verified in its own pixels (eviction.members_agreement, with this estimation's verifications)."""
+        return members_agreement(k, place, group.members, group.union.footprints, footprint(self.grids[k], place),
+                                 self.prepared, self.s, self.judged)
 
     def _wait(self, m: PairMatch, why: str) -> None:
         """The accepted match m counts as refused for `why` (not as evidence that the grid contradicts the group)."""
@@ -1090,21 +1094,19 @@ class Grower:
         """Whether grid k passes readmit_weak's rules at `place` (metric, the merge's frame); if so, it joins the merge
         `group` there."""
         c = self.passes_onto(self.prepared[k], group.union.prepared(), place)
-        box = footprint(self.grids[k], place)
-        agreeing, contradicting = (judge_members(k, place, group.members, group.union.footprints, box, self.prepared,
-                                                 self.s, verified=self.judged) if c is not None else ([], [None]))
-        pooled = members_agreement(k, place, group.members, group.union.footprints, box, self.prepared, self.s,
-                                   self.judged) if c is not None and not contradicting else 0.0
-        if pooled < WEAK_AGREEMENT:
-            log.debug('grid %d set aside stays out: %s', k, 'the merge refuses it at its place' if c is None else
-                      f'members {contradicting} contradict it' if contradicting else
-                      f'the members there agree {pooled:.3f} with it')
+        why = 'the merge refuses it at its place' if c is None else ''
+        if not why:
+            _, contradicting = judge_members(k, place, group.members, group.union.footprints,
+                                             footprint(self.grids[k], place), self.prepared, self.s,
+                                             verified=self.judged)
+            pooled = self._members_agreement(k, place, group) if not contradicting else 0.0
+            why = f'members {contradicting} contradict it' if contradicting else \
+                f'the members there agree {pooled:.3f} with it' if pooled < WEAK_AGREEMENT else ''
+        if why:
+            log.debug('grid %d set aside stays out: %s', k, why)
             return False
-        m = PairMatch(k, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
-        m.confidence = pair_confidence(m.inliers, m.matches)
-        m.transform_m = place
         self.evicted.discard(k)
-        self._join(group, m)
+        self._join(group, accepted_at(k, group.seed, c, place))
         return True
 
     def still_ambiguous(self, group: Group, m: PairMatch) -> Optional[Placement]:

@@ -79,6 +79,15 @@ class PairMatch:
         return float(self.best.support) if self.best is not None else 0.0
 
 
+def accepted_at(i: int, j: int, c: Placement, transform_m: np.ndarray) -> PairMatch:
+    """An accepted match of grid (or union) i onto j made of a verification `c` at `transform_m` (metric: i's frame
+    -> j's), where the estimation judged a placement itself rather than by match_pair."""
+    m = PairMatch(i, j, c.support + c.conflicts, c.support, accepted=True, best=c)
+    m.confidence = pair_confidence(m.inliers, m.matches)
+    m.transform_m = transform_m
+    return m
+
+
 def symmetric_alternatives(pi: PreparedGrid, pj: PreparedGrid, best: Placement) -> List[np.ndarray]:
     """The best placement turned by 90, 180 and 270 degrees about the middle of the common area.
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from .. import transforms as tf
 from .eviction import judge_members, vouched_for
-from .pair import PairMatch, as_good, find_rival
+from .pair import PairMatch, accepted_at, as_good, find_rival
 from .refine import icp
 from .union import footprint
 from .verify import Placement, pair_confidence, same_place
@@ -95,10 +95,7 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
                   if rival is not None else '')
         if rival is not None:
             return None
-        m = PairMatch(them.seed, group.seed, c.support + c.conflicts, c.support, accepted=True, best=c)
-        m.confidence = pair_confidence(m.inliers, m.matches)
-        m.transform_m = place
-        return m
+        return accepted_at(them.seed, group.seed, c, place)
     return None
 
 
