@@ -1,8 +1,8 @@
 """Candidate placements without descriptors: rotation by wall directions, translation by cross-correlation.
 
 Small overlaps give too few descriptor matches for RANSAC. Here, at a coarse resolution, grid i is turned by
-candidate angles (a sweep, plus the differences of the grids' dominant wall directions modulo 90 degrees) and
-slid over grid j by FFT cross-correlation of
+candidate angles (a sweep, plus the differences of the grids' dominant wall directions modulo 90 degrees; only
+those about the turns where the two grids' wall families meet, when both have families) and slid over grid j by FFT cross-correlation of
     walls_i * walls_j  -  penalty * (walls_i * open_j + open_i * walls_j)  +  free_reward * open_i * open_j
 (open = free and away from walls). A wall on the other's open floor is a contradiction, hence the heavy penalty;
 floor both maps saw free is weak but real evidence, which matters where the two share few walls (on the dev set's
@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .features import PreparedGrid, nonzero_2d
+from .orientation import near_turns
 from .validation import must_not_be_negative
 
 PENALTY = 3.0
@@ -133,7 +134,9 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     """Best coarse placements of grid i on grid j, as 3x3 transforms between working pixels; only those `wanted`
     accepts (a search for placements elsewhere than a known one), `peaks_per_angle` at most per angle. With
     `distinct_places`, after them the best peak of each of the `keep` best places that they miss (Places). With
-    `angles` (radians), only those are correlated, at the factor, unscreened.
+    `angles` (radians), only those are correlated, at the factor, unscreened; without, the sweep's
+    (rotation_candidates), only those about the turns where the grids' wall families meet when both have families
+    (orientation.near_turns).
 
     Coarse to fine: every angle is correlated at SCREEN_COARSER times the factor first (less than half the
     pixels), and only the `screen_angles` angles of its best peaks again at the factor (0: every angle at the
@@ -145,11 +148,14 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
     screen_factor = int(round(SCREEN_COARSER * factor))
     if angles is not None:
         angles = list(angles)
-    elif screen_angles > 0 and screen_factor > factor \
-            and min(pi.work.shape + pj.work.shape) >= screen_factor * SCREEN_MIN_PIXELS:
-        screened = _correlate(pi, pj, screen_factor, sweep_degrees, peaks_per_angle, 2 * screen_angles, penalty,
-                              free_reward, None, threads, None)
-        angles = list(dict.fromkeys(angle for _, _, angle in screened))[:screen_angles]
+    else:
+        # the sweep's angles about the turns where the grids' wall families meet (all of them without families)
+        angles = near_turns(pi, pj, rotation_candidates(coarse(pi, factor), coarse(pj, factor), sweep_degrees))
+        if screen_angles > 0 and screen_factor > factor \
+                and min(pi.work.shape + pj.work.shape) >= screen_factor * SCREEN_MIN_PIXELS:
+            screened = _correlate(pi, pj, screen_factor, sweep_degrees, peaks_per_angle, 2 * screen_angles, penalty,
+                                  free_reward, None, threads, angles)
+            angles = list(dict.fromkeys(angle for _, _, angle in screened))[:screen_angles]
     found = _correlate(pi, pj, factor, sweep_degrees, peaks_per_angle, keep, penalty, free_reward, wanted, threads,
                        angles, distinct_places)
     return [t for _, t, _ in found]

@@ -87,7 +87,7 @@ SERVER_PRELOAD = ['numpy', 'cv2']
 # times, 0.89 s) and its 107 coarse grids 244 times (0.92 s; shared, 139 times, 0.53 s)
 NEIGHBOURS_PREFIX = 'nn_'
 DERIVED_SUFFIX = '.derived'
-SHARED_DERIVED = ('coarse', 'direction', 'orientation')
+SHARED_DERIVED = ('coarse', 'direction', 'orientation', 'families')
 
 
 @dataclass
