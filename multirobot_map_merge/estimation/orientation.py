@@ -50,6 +50,11 @@ class Orientation:
     sigma: float
 
 
+def _offset(angle: np.ndarray, centre: float) -> np.ndarray:
+    """angle - centre modulo 90 degrees, in [-45, 45] degrees (radians)."""
+    return np.angle(np.exp(4j * (angle - centre))) / 4
+
+
 def orientation(p: PreparedGrid) -> Optional[Orientation]:
     """The direction of grid p's long walls, computed once per prepared grid; None when they are too few or not
     rectilinear."""
@@ -89,13 +94,13 @@ def _orientation(length: np.ndarray, angle: np.ndarray) -> Optional[Orientation]
     if length.size == 0:
         return None
     mean = float(np.angle((length * np.exp(4j * angle)).sum()) / 4)
-    aside = np.abs(np.angle(np.exp(4j * (angle - mean))) / 4) >= math.radians(OUTLIER_DEGREES)
+    aside = np.abs(_offset(angle, mean)) >= math.radians(OUTLIER_DEGREES)
     if length[aside].sum() > MAX_ASIDE_SHARE * length.sum():
         return None
     length, angle = length[~aside], angle[~aside]
     mean = float(np.angle((length * np.exp(4j * angle)).sum()) / 4)
     n_effective = length.sum() ** 2 / (length ** 2).sum()
-    deviation = np.angle(np.exp(4j * (angle - mean))) / 4
+    deviation = _offset(angle, mean)
     spread = math.sqrt(float((length * deviation ** 2).sum() / length.sum()))
     sigma = max(spread / math.sqrt(n_effective), math.radians(MIN_SIGMA_DEGREES))
     if n_effective < MIN_SEGMENTS or spread > math.radians(MAX_SPREAD_DEGREES) or sigma > math.radians(MAX_SIGMA_DEGREES):
@@ -183,11 +188,6 @@ def wall_families(length_m: np.ndarray, angle: np.ndarray) -> Optional[List[Tupl
     if length_m[~left].sum() < FAMILIES_COVER * total:
         return None
     return found
-
-
-def _offset(angle: np.ndarray, centre: float) -> np.ndarray:
-    """angle - centre modulo 90 degrees, in [-45, 45] degrees (radians)."""
-    return np.angle(np.exp(4j * (angle - centre))) / 4
 
 
 def near_turns(pi: PreparedGrid, pj: PreparedGrid, angles: Sequence[float]) -> List[float]:
