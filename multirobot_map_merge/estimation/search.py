@@ -2,7 +2,8 @@
 
 Small overlaps give too few descriptor matches for RANSAC. Here, at a coarse resolution, grid i is turned by
 candidate angles (a sweep, plus the differences of the grids' dominant wall directions modulo 90 degrees; only
-those about the turns where the two grids' wall families meet, when both have families) and slid over grid j by FFT cross-correlation of
+those about the turns where the two grids' wall families meet, when both have families) and slid over grid j by
+FFT cross-correlation of
     walls_i * walls_j  -  penalty * (walls_i * open_j + open_i * walls_j)  +  free_reward * open_i * open_j
 (open = free and away from walls). A wall on the other's open floor is a contradiction, hence the heavy penalty;
 floor both maps saw free is weak but real evidence, which matters where the two share few walls (on the dev set's
