@@ -113,7 +113,7 @@ def test_the_search_screens_only_the_angles_about_the_turns(monkeypatch):
 
     correlated = []
     real = search._correlate
-    monkeypatch.setattr(search, '_correlate', lambda *a, **k: correlated.append(a[10]) or real(*a, **k))
+    monkeypatch.setattr(search, '_correlate', lambda *a, **k: correlated.append(a[9]) or real(*a, **k))
     assert near_truth(search.correlate_candidates(pi, pj))
     assert correlated[0] == orientation.near_turns(pi, pj, _sweep(pi, pj))   # the screen's angles
     correlated.clear()

@@ -207,5 +207,9 @@ def near_turns(pi: PreparedGrid, pj: PreparedGrid, angles: Sequence[float]) -> L
     fi, fj = families(pi), families(pj)
     if fi is None or fj is None:
         return list(angles)
-    windows = [(cj - ci, math.radians(TURN_WINDOW_DEGREES) + si + sj) for ci, si in fi for cj, sj in fj]
-    return [a for a in angles if any(abs(float(_offset(np.float64(a), turn))) <= reach for turn, reach in windows)]
+    of = np.asarray(angles, np.float64)
+    near = np.zeros(len(of), bool)
+    for ci, si in fi:
+        for cj, sj in fj:
+            near |= np.abs(_offset(of, cj - ci)) <= math.radians(TURN_WINDOW_DEGREES) + si + sj
+    return [a for a, kept in zip(angles, near) if kept]

@@ -154,21 +154,20 @@ def correlate_candidates(pi: PreparedGrid, pj: PreparedGrid, factor: int = 4, sw
         angles = near_turns(pi, pj, rotation_candidates(coarse(pi, factor), coarse(pj, factor), sweep_degrees))
         if screen_angles > 0 and screen_factor > factor \
                 and min(pi.work.shape + pj.work.shape) >= screen_factor * SCREEN_MIN_PIXELS:
-            screened = _correlate(pi, pj, screen_factor, sweep_degrees, peaks_per_angle, 2 * screen_angles, penalty,
-                                  free_reward, None, threads, angles)
+            screened = _correlate(pi, pj, screen_factor, peaks_per_angle, 2 * screen_angles, penalty, free_reward,
+                                  None, threads, angles)
             angles = list(dict.fromkeys(angle for _, _, angle in screened))[:screen_angles]
-    found = _correlate(pi, pj, factor, sweep_degrees, peaks_per_angle, keep, penalty, free_reward, wanted, threads,
-                       angles, distinct_places)
+    found = _correlate(pi, pj, factor, peaks_per_angle, keep, penalty, free_reward, wanted, threads, angles,
+                       distinct_places)
     return [t for _, t, _ in found]
 
 
-def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: float, peaks_per_angle: int,
-               keep: int, penalty: float, free_reward: float, wanted: Optional[Callable[[np.ndarray], bool]],
-               threads: int, angles: Optional[List[float]],
-               distinct_places: bool = False) -> List[Tuple[float, np.ndarray, float]]:
+def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, peaks_per_angle: int, keep: int, penalty: float,
+               free_reward: float, wanted: Optional[Callable[[np.ndarray], bool]], threads: int,
+               angles: List[float], distinct_places: bool = False) -> List[Tuple[float, np.ndarray, float]]:
     """(score, transform i -> j between working pixels, angle) of the `keep` best peaks at `factor`, over the
-    given angles (None: rotation_candidates), best first; with `distinct_places`, then the best peaks of the `keep`
-    best places that those miss, best first."""
+    given angles, best first; with `distinct_places`, then the best peaks of the `keep` best places that those
+    miss, best first."""
     ci, cj = coarse(pi, factor), coarse(pj, factor)
     hi, wi = ci.walls.shape
     hj, wj = cj.walls.shape
@@ -180,9 +179,6 @@ def _correlate(pi: PreparedGrid, pj: PreparedGrid, factor: int, sweep_degrees: f
     against = (fwj - penalty * foj, free_reward * foj - penalty * fwj)
     k = np.array([[factor, 0.0, (factor - 1) / 2.0], [0.0, factor, (factor - 1) / 2.0], [0.0, 0.0, 1.0]])
     k_inv = np.linalg.inv(k)
-    if angles is None:
-        angles = rotation_candidates(ci, cj, sweep_degrees)
-
     units = opposite_pairs(angles)
 
     def best_of(some: List[Tuple[float, Optional[float]]]) -> List[Tuple[float, np.ndarray, float]]:
