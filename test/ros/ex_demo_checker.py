@@ -3,7 +3,11 @@
 
 test_merge_matches_ground_truth: map_merge's latched status places all ~num_robots robots (unknown initial poses)
     and, when the demo has ended, each placement, relative to the first robot, is within ~max_rotation_deg and ~max_corner_m of the
-    simulator's ground truth (largest displacement of the corners of the robot map's known area).
+    simulator's ground truth (largest displacement of the corners of the robot map's known area). With
+    ~judge_by_data (robots whose SLAM drifts: their start pose is not where their walls fit best), a robot off by
+    those bounds passes when it is right by the data, as the demo's summary and ../shared/eval's score_real judge:
+    within 1 degree and 0.5 m of the truth, its walls fitting the other placed maps at least 0.95 as well as at the
+    true poses (explore.coverage.right_by_the_data).
 test_demo_writes_merged_map: the demo supervisor ends (every explorer stopped, or its limit) and writes
     ~out/summary.json and the merged map ~out/merged.yaml (+ .pgm, .png); placed in the ground-truth world through
     map_merge's placement, the written map covers at least ~min_merged_share of the reachable area; the summary's
@@ -20,7 +24,8 @@ import rostest
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid
 
-from explore.coverage import explored_share, placement_errors, reachable_mask, truth_from_estimate
+from explore.coverage import (explored_share, placement_errors, reachable_mask, right_by_the_data,
+                             truth_from_estimate)
 from multirobot_map_merge.mapio import load_map
 from multirobot_map_merge.msg import MergeStatus
 from multirobot_map_merge.ros.conversions import grid_from_msg, yaw_from_quaternion
@@ -73,10 +78,20 @@ class DemoCheck(unittest.TestCase):
                 for n in self.names}
         rows = placement_errors(placed, self.truth, maps)
         self.assertEqual(len(rows), len(self.names))
+        max_deg = float(rospy.get_param('~max_rotation_deg', 1.0))
+        max_m = float(rospy.get_param('~max_corner_m', 0.15))
         for r in rows:
             rospy.loginfo('ex_demo_checker: %s', r)
-            self.assertLessEqual(r['rotation_error_deg'], float(rospy.get_param('~max_rotation_deg', 1.0)), r)
-            self.assertLessEqual(r['corner_error_m'], float(rospy.get_param('~max_corner_m', 0.15)), r)
+            if (r['rotation_error_deg'] > max_deg or r['corner_error_m'] > max_m) \
+                    and rospy.get_param('~judge_by_data', False):
+                right, fit_placed, fit_true = right_by_the_data(r, placed, self.truth, maps)
+                rospy.loginfo('ex_demo_checker: %s off by the strict bounds; by the data %s (walls fitting %d/%d '
+                              'where placed, %d/%d at the true poses)', r['robot'], 'right' if right else 'off',
+                              fit_placed[1], fit_placed[0], fit_true[1], fit_true[0])
+                self.assertTrue(right, f'{r}: walls fit {fit_placed} where placed, {fit_true} at the true poses')
+                continue
+            self.assertLessEqual(r['rotation_error_deg'], max_deg, r)
+            self.assertLessEqual(r['corner_error_m'], max_m, r)
 
     def test_2_demo_writes_merged_map(self):
         path = os.path.join(self.out, 'summary.json')
