@@ -44,12 +44,17 @@ def test_a_wing_of_another_direction_makes_a_family_of_its_own():
     assert orientation.wall_orientation(work, RES) is None   # no single direction
 
 
-def test_round_walls_have_no_families():
+def _round_hall():
+    """A round hall with a round wall inside: no straight walls."""
     work = np.full((600, 600), -1, np.int8)
     cv2.circle(work, (300, 300), 250, 0, -1)
     for r in (250, 120):
         cv2.circle(work, (300, 300), r, 100, 1)
-    assert _families(work) is None
+    return work
+
+
+def test_round_walls_have_no_families():
+    assert _families(_round_hall()) is None
 
 
 def _part_turned(degrees):
@@ -74,7 +79,7 @@ def _sweep(pi, pj):
 
 
 def _turn_off_degrees(angle, true_angle):
-    return abs((math.degrees(angle) - true_angle + 45) % 90 - 45)
+    return abs(_off_degrees(angle, true_angle))
 
 
 def test_the_sweep_keeps_its_angles_about_the_turns_where_the_families_meet():
@@ -92,11 +97,7 @@ def test_the_sweep_keeps_its_angles_about_the_turns_where_the_families_meet():
 
 def test_without_families_the_sweep_keeps_every_angle():
     pi, pj, _ = _part_turned(23.4)
-    round_hall = np.full((600, 600), -1, np.int8)
-    cv2.circle(round_hall, (300, 300), 250, 0, -1)
-    for r in (250, 120):
-        cv2.circle(round_hall, (300, 300), r, 100, 1)
-    cave = prepare(Grid(round_hall, RES), RES, None)
+    cave = prepare(Grid(_round_hall(), RES), RES, None)
     assert orientation.near_turns(cave, pj, _sweep(cave, pj)) == _sweep(cave, pj)
 
 
