@@ -342,11 +342,11 @@ def generated_block(name: str, cache: Path, repeat: int) -> Tuple[int, List[str]
 
 
 def building_names(arg: str) -> List[str]:
-    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), 'unseen' and
-    'unseen2' (the held-out buildings of every kind, <kind>36_u and <kind>36_v), 'large' (large36 and its three
-    other buildings, large36_b to _d), or a list."""
+    """--generated's NAMES: 'buildings' (every building kind of make_sample_maps.BUILDING_FLEETS), 'unseen',
+    'unseen2' and 'unseen3' (the held-out buildings of every kind, <kind>36_u, _v and _w), 'large' (large36 and its
+    three other buildings, large36_b to _d), or a list."""
     import make_sample_maps
-    suffix = {'buildings': '', 'unseen': '_u', 'unseen2': '_v'}.get(arg)
+    suffix = {'buildings': '', 'unseen': '_u', 'unseen2': '_v', 'unseen3': '_w'}.get(arg)
     if suffix is not None:
         return [f'{kind}36{suffix}' for kind in make_sample_maps.BUILDING_FLEETS]
     if arg == 'large':
@@ -563,8 +563,8 @@ def main() -> int:
                          'rules hold together at their true places and how many of those are placed right, and why '
                          'each mergeable map is left out or placed wrong. NAMES: comma-separated '
                          '(make_sample_maps.py GENERATED: large36, large36_b.._d, <kind>36 for every building kind, '
-                         '<kind>36_u and <kind>36_v the held-out ones), unseen: every <kind>36_u, unseen2: every '
-                         '<kind>36_v, large: large36 to large36_d, or none: every <kind>36')
+                         '<kind>36_u, _v and _w the held-out ones), unseen: every <kind>36_u, unseen2: every '
+                         '<kind>36_v, unseen3: every <kind>36_w, large: large36 to large36_d, or none: every <kind>36')
     ap.add_argument('--replay', action='store_true',
                     help='with --generated: match each mergeable map not placed right again, against the right-placed '
                          'maps it overlaps most and against the merged map, each verdict checked with the truth '

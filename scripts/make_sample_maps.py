@@ -278,12 +278,14 @@ BUILDING_FLEETS: Dict[str, Tuple[dict, Tuple[int, int], Tuple[float, float]]] = 
 }
 # <kind>36_u: the same fleets in other buildings of each kind (other world and robot seeds), held out: measured
 # (bench_merge.py --generated unseen), never tuned on; <kind>36_v: a second such set (--generated unseen2), to check
-# that a change found on a building of the first holds on buildings no rule was looked for on
+# that a change found on a building of the first holds on buildings no rule was looked for on; <kind>36_w: a third
+# (--generated unseen3), made once the rules had been checked on both others
 for _i, (_kind, (_pattern, _goals, _step)) in enumerate(BUILDING_FLEETS.items()):
     GENERATED[f'{_kind}36'] = dict(GENERATED['large36'], kind=_kind, building=_kind, world_seed=100 + _i,
                                    seed=200 + _i, goals=_goals, goal_step_m=_step, **_pattern)
     GENERATED[f'{_kind}36_u'] = dict(GENERATED[f'{_kind}36'], world_seed=300 + _i, seed=400 + _i)
     GENERATED[f'{_kind}36_v'] = dict(GENERATED[f'{_kind}36'], world_seed=500 + _i, seed=600 + _i)
+    GENERATED[f'{_kind}36_w'] = dict(GENERATED[f'{_kind}36'], world_seed=700 + _i, seed=800 + _i)
 
 
 def free_with_clearance(world: Grid) -> Tuple[np.ndarray, np.ndarray]:
