@@ -709,3 +709,28 @@ def test_a_member_passed_beside_members_it_contradicts_is_told_from_one_judged_w
     # a member of another group, absorbed later, was not in the union it joined
     assert not passed_beside(16, [(16, 20)], {20: (4, 0, 2), 16: (5, 2, 1)})
     assert not passed_beside(16, [(16, 20)], {20: (4, 0, 1)})   # joined otherwise
+
+
+def test_a_member_the_merge_falls_apart_without_leaves_only_to_let_its_voter_in(monkeypatch):
+    """Map 1 alone holds maps 0 and 2 together (they share no floor). A map left out that contradicts it alone
+    takes it out only where that map would then join (Grower._makes_room), even before the end's searches: taken out
+    on the word of a map at an alias (the held-out maze36_w: map_35, 20 m from its true place), it took the other
+    part out of the merge with it. A member the merge holds together without leaves on the map's word alone."""
+    from multirobot_map_merge.estimation import growth
+    world = stubbed_building()
+    grids = [seen(world, 0, 130), seen(world, 100, 200), seen(world, 170, 300), seen(world, 0, 300)]
+
+    def voted_against(member):
+        def vote(left_out, refused, members, footprints, footprint_of, prepared, keep, s, seen, voters, *rest,
+                 **options):
+            voters.setdefault(member, []).append((3, np.eye(3)))
+            return [member]
+        return vote
+
+    for member, joins, leaves in ((1, False, False), (1, True, True), (2, False, True)):
+        grower, group = _merge_of(grids, [0, 1, 2])
+        monkeypatch.setattr(growth, 'contradicted_members', voted_against(member))
+        monkeypatch.setattr(growth.Grower, '_makes_room', lambda self, group, out, voters: joins)
+        monkeypatch.setattr(growth.Grower, 'grow', lambda self, *args, **options: False)
+        assert grower.evict_contradicted(group, [group], []) == leaves
+        assert (member in grower.evicted) == leaves

@@ -29,7 +29,7 @@ from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
 from .pair import AMBIGUOUS, SEARCH_POSTPONED, PairMatch, accepted_at, as_good
 from .settings import EstimationSettings
-from .split import split
+from .split import parts_of, split
 from .eviction import (contradicted_members, judge_members, members_agreement, places, singled_out_together,
                        vouched_for)
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
@@ -576,8 +576,13 @@ class Grower:
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
                                            (self.reference,), self.s, seen, voters, self.judged, own=True,
                                            together=together)
-            if make_room:
-                singled = [j for j in singled if self._makes_room(group, {j}, voters[j])]
+            # a member the group falls apart without (split.py) takes the other parts out with it: it leaves only
+            # where a map that singled it out would then join, with `make_room` or not. The held-out maze36_w: map_35,
+            # at an alias 20 m from its true place, agreed with three members and contradicted map_30, the one member
+            # that held four others to the merge; map_35 joined nowhere, and 5 maps stayed out with map_30
+            singled = [j for j in singled
+                       if (not make_room and len(parts_of(self, group, {j})) < 2) or self._makes_room(group, {j},
+                                                                                                   voters[j])]
             if singled:
                 self._evict(group, singled[0], 'maps the other members agree with contradict it')
             else:

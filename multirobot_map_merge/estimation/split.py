@@ -25,9 +25,10 @@ from .union import footprint
 log = logging.getLogger('rosout.' + __name__)
 
 
-def parts_of(grower, group) -> List[Set[int]]:
-    """The members of `group` in parts that hold together by members agreeing as pairs, the one to keep first."""
-    members = dict(group.members)
+def parts_of(grower, group, without: Set[int] = frozenset()) -> List[Set[int]]:
+    """The members of `group` (but those `without`) in parts that hold together by members agreeing as pairs, the
+    one to keep first."""
+    members = {k: t for k, t in group.members.items() if k not in without}
     edges: Dict[int, Set[int]] = {k: set() for k in members}
     for k, t in members.items():
         others = {j: u for j, u in members.items() if j != k}
