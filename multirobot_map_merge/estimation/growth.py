@@ -991,7 +991,20 @@ class Grower:
                     joining.append((m, agreeing, contradicting))
                 else:
                     blocked[m.i] = contradicting
+            joined_now: Dict[int, np.ndarray] = {}   # the maps that joined in this round, where
             for m, agreeing, contradicting in joining:
+                # each was judged on the merge as the round began: one that contradicts a map that joined before it in
+                # the round waits, judged again on the merge grown by that map (the held-out courtyard36_w, seed 1:
+                # map_35, at an alias 5 m along the courtyard, joined in the round that map_29 joined at its true
+                # place, contradicting it; map_34 then joined onto map_35, took map_29's place, and 3 maps were off)
+                _, against = judge_members(m.i, m.transform_m, joined_now,
+                                           {k: footprint(self.grids[k], t) for k, t in joined_now.items()},
+                                           footprint(self.grids[m.i], m.transform_m), self.prepared, self.s,
+                                           verified=self.judged)
+                if against:
+                    log.debug('grid %d left out waits: it contradicts grid %d, which joined the merge in this round',
+                              m.i, against[0])
+                    continue
                 for j in contradicting:
                     if j in group.members:
                         self._evict(group, j, f'grid {m.i}, which more members agree with, contradicts it')
@@ -1000,7 +1013,8 @@ class Grower:
                 self.evicted.discard(m.i)
                 self._join(group, m)
                 self.left_out_joined[m.i] = (len(agreeing), m.best.support)
-            joined += len(joining)
+                joined_now[m.i] = m.transform_m
+            joined += len(joined_now)
             for m in matches:
                 self.left_out_boxes[m.i] = footprint(self.grids[m.i], m.transform_m) \
                     if m.best is not None and m.best.overlap_m2 >= self.s.min_overlap_m2 else None
