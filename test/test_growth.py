@@ -1040,3 +1040,31 @@ def test_the_same_maps_in_any_order_are_placed_alike_to_the_last_digit(repo_root
         for k in range(3):
             assert np.allclose(other[k], relative[0][k], rtol=0.0, atol=1e-9), (k, other[k] - relative[0][k])
 
+
+
+def test_a_member_back_in_at_the_end_lets_the_maps_left_out_vote_again(repo_root, monkeypatch):
+    """A member taken out that joins again at the end (search_left_out's readmit) can be the second member a map left
+    out agrees with: the maps left out vote again on the merge with it (evict_contradicted with make_room). The held-out
+    pillar_hall36_w: a broken group's vote took map_12 out; back at the end, maps 0, 15 and 21 agreed with it and
+    map_35 and voted out broken map_33, which had kept seven maps out."""
+    from multirobot_map_merge.estimation import growth
+    grids, _ = _sample(repo_root, 'three_robots')
+    for back in (0, 1):
+        events = []
+        search, evict = growth.Grower.search_left_out, growth.Grower.evict_contradicted
+
+        def searched(self, group, readmit=False, _search=search, _back=back, **options):
+            joined = _search(self, group, readmit=readmit, **options)
+            events.append('readmit' if readmit else 'search')
+            return _back if readmit else joined
+
+        def evicted(self, group, groups, unplaced, make_room=False, _evict=evict):
+            events.append(('evict', make_room))
+            return _evict(self, group, groups, unplaced, make_room=make_room)
+
+        monkeypatch.setattr(growth.Grower, 'search_left_out', searched)
+        monkeypatch.setattr(growth.Grower, 'evict_contradicted', evicted)
+        estimate(grids, EstimationSettings())
+        after = events[events.index('readmit') + 1:]
+        assert (('evict', True) in after) == bool(back)
+        monkeypatch.undo()

@@ -507,8 +507,12 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 if not settings.evict or not grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
                     break
                 chosen = largest()
-            if settings.evict:
-                grower.search_left_out(chosen, readmit=True)   # a member taken out may have been right
+            if settings.evict and grower.search_left_out(chosen, readmit=True):   # a member taken out may have been right
+                # a member back in vouches for the maps left out: their votes are counted again on the merge with it
+                if grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
+                    chosen = largest()
+                    grower.search_left_out(chosen)
+                    grower.search_left_out(chosen, readmit=True)
             joined = search_side_groups(grower, chosen)
             grower.readmit_weak(chosen, weak)
             moved = search_placed_again(grower, chosen)
