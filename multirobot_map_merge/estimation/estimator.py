@@ -507,8 +507,9 @@ def _estimate(grids: Sequence[Optional[Grid]], settings: EstimationSettings, cac
                 if not settings.evict or not grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
                     break
                 chosen = largest()
-            if settings.evict and grower.search_left_out(chosen, readmit=True):   # a member taken out may have been right
-                # a member back in vouches for the maps left out: their votes are counted again on the merge with it
+            # a member taken out may have been right; back in, it vouches for the maps left out: their votes are
+            # counted again on the merge with it
+            if settings.evict and grower.search_left_out(chosen, readmit=True):
                 if grower.evict_contradicted(chosen, groups, in_no_group(), make_room=True):
                     chosen = largest()
                     grower.search_left_out(chosen)
