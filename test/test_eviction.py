@@ -737,24 +737,28 @@ def test_a_member_the_merge_falls_apart_without_leaves_only_to_let_its_voter_in(
 
 
 def test_two_maps_left_out_that_contradict_each_other_do_not_join_in_one_round(monkeypatch):
-    """search_left_out judges the maps of a round on the merge as the round began: a map that contradicts one that
-    joined before it in the same round waits (the held-out courtyard36_w, seed 1: map_35 at an alias 5 m along the
+    """search_left_out judges the maps of a round on the merge as the round began: of two that contradict each other,
+    the stronger joins and the other waits (the held-out courtyard36_w, seed 1: map_35 at an alias 5 m along the
     courtyard joined beside map_29 at its true place, which it contradicted, and two more maps followed it there)."""
     from multirobot_map_merge.estimation import growth
     from multirobot_map_merge.estimation.pair import accepted_at
     world = stubbed_building()
     grids = [seen(world, 0, 170), seen(world, 130, 300), seen(world, 60, 240), seen(world, 70, 250)]
-    grower, group = _merge_of(grids, [0, 1])
-    place = Placement(np.eye(3), support=800, agreement=1.0, overlap_m2=60.0)
-    monkeypatch.setattr(growth, 'LEFT_OUT_ROUNDS', 1)
-    monkeypatch.setattr(grower.matcher, 'match_all',
-                        lambda calls: [accepted_at(c.i, c.j, place, np.eye(3)) for c in calls], raising=False)
-    monkeypatch.setattr(growth.Grower, 'shares_enough', lambda self, k, overlap: True)
+    for stronger in (2, 3):
+        grower, group = _merge_of(grids, [0, 1])
+        monkeypatch.setattr(growth, 'LEFT_OUT_ROUNDS', 1)
+        # the stronger of the two (more agreeing walls) joins first, whatever their order
+        places = {k: Placement(np.eye(3), support=900 if k == stronger else 800, agreement=1.0, overlap_m2=60.0)
+                  for k in (2, 3)}
+        monkeypatch.setattr(grower.matcher, 'match_all',
+                            lambda calls: [accepted_at(c.i, c.j, places[c.i], np.eye(3)) for c in calls],
+                            raising=False)
+        monkeypatch.setattr(growth.Grower, 'shares_enough', lambda self, k, overlap: True)
 
-    def judged(k, placed, members, *args, **options):
-        # the merge's members agree with either map; map 3 contradicts map 2 wherever both are
-        return ([j for j in members if j < 2], [j for j in members if (k, j) == (3, 2)])
+        def judged(k, placed, members, *args, **options):
+            # the merge's members agree with either map; maps 2 and 3 contradict each other wherever both are
+            return [j for j in members if j < 2], [j for j in members if {k, j} == {2, 3}]
 
-    monkeypatch.setattr(growth, 'judge_members', judged)
-    assert grower.search_left_out(group, also=[2, 3]) == 1
-    assert sorted(group.members) == [0, 1, 2]
+        monkeypatch.setattr(growth, 'judge_members', judged)
+        assert grower.search_left_out(group, also=[2, 3]) == 1
+        assert sorted(group.members) == [0, 1, stronger]

@@ -992,11 +992,14 @@ class Grower:
                 else:
                     blocked[m.i] = contradicting
             joined_now: Dict[int, np.ndarray] = {}   # the maps that joined in this round, where
+            # the strongest first (members agreeing, then agreeing walls; by content, not index, on a tie)
+            joining.sort(key=lambda j: (-len(j[1]), -j[0].best.support, self.prepared[j[0].i].draw_key))
             for m, agreeing, contradicting in joining:
                 # each was judged on the merge as the round began: one that contradicts a map that joined before it in
                 # the round waits, judged again on the merge grown by that map (the held-out courtyard36_w, seed 1:
                 # map_35, at an alias 5 m along the courtyard, joined in the round that map_29 joined at its true
-                # place, contradicting it; map_34 then joined onto map_35, took map_29's place, and 3 maps were off)
+                # place, contradicting it, with 1358 agreeing walls against 1432; map_34 then joined onto map_35, took
+                # map_29's place, and 3 maps were off)
                 _, against = judge_members(m.i, m.transform_m, joined_now,
                                            {k: footprint(self.grids[k], t) for k, t in joined_now.items()},
                                            footprint(self.grids[m.i], m.transform_m), self.prepared, self.s,
