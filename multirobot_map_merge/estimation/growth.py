@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
+import math
 import time
 from concurrent.futures import Executor
 from typing import Callable, Dict, FrozenSet, Hashable, Iterable, Iterator, List, Optional, Sequence, Set, Tuple
@@ -34,7 +35,7 @@ from .eviction import (contradicted_members, judge_members, members_agreement, p
                        vouched_for)
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
-from .union import Box, UnionMap, footprint, overlap_area
+from .union import Box, UnionMap, footprint, known_corners, overlap_area
 from .refine import icp
 from .verify import IMPRECISE, Placement, distinct, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
@@ -1115,8 +1116,18 @@ class Grower:
     def _weak_passes(self, group: Group, k: int, place: np.ndarray) -> bool:
         """Whether grid k passes readmit_weak's rules at `place` (metric, the merge's frame); if so, it joins the merge
         `group` there."""
-        c = self.passes_onto(self.prepared[k], group.union.prepared(), place)
-        why = 'the merge refuses it at its place' if c is None else ''
+        # its search onto the final merge (search_left_out's readmit), refused or short of the share, may have put it
+        # at another place that a match can stand on: the two rival, and neither is the evidence (the held-out
+        # maze36_w, seed 1: map_08, placed by the growth's search on 0.10 of its area a quarter turn off, was placed
+        # there 34 m from it)
+        again = self.left_out_matches.get(k) or self.refused.get(k)
+        why = ''
+        if again is not None and again.j == group.seed and places(again, self.s):
+            rot, disp = tf.difference(place, again.transform_m, known_corners(self.grids[k]))
+            if math.degrees(rot) > self.s.distinct_degrees or disp > self.s.distinct_metres:
+                why = f'its search onto the final merge put it {math.degrees(rot):.1f} degrees and {disp:.1f} m away'
+        c = self.passes_onto(self.prepared[k], group.union.prepared(), place) if not why else None
+        why = why or ('the merge refuses it at its place' if c is None else '')
         if not why:
             _, contradicting = judge_members(k, place, group.members, group.union.footprints,
                                              footprint(self.grids[k], place), self.prepared, self.s,
