@@ -577,13 +577,7 @@ class Grower:
                                            lambda k, t: footprint(self.grids[k], t), self.prepared,
                                            (self.reference,), self.s, seen, voters, self.judged, own=True,
                                            together=together)
-            # a member the group falls apart without (split.py) takes the other parts out with it: it leaves only
-            # where a map that singled it out would then join, with `make_room` or not. The held-out maze36_w: map_35,
-            # at an alias 20 m from its true place, agreed with three members and contradicted map_30, the one member
-            # that held four others to the merge; map_35 joined nowhere, and 5 maps stayed out with map_30
-            singled = [j for j in singled
-                       if (not make_room and len(parts_of(self, group, {j})) < 2) or self._makes_room(group, {j},
-                                                                                                   voters[j])]
+            singled = [j for j in singled if self._may_leave(group, j, voters[j], make_room)]
             if singled:
                 self._evict(group, singled[0], 'maps the other members agree with contradict it')
             else:
@@ -810,6 +804,17 @@ class Grower:
         unions): then it stays, whatever maps of the other group placed there say (a seed joined by none does not)."""
         link = group.links.get(j)
         return link is not None and link.best is not None and link.best.support >= place.support
+
+    def _may_leave(self, group: Group, j: int, voters: List[tuple], make_room: bool) -> bool:
+        """Whether member j, singled out by the maps `voters` (_makes_room), leaves on their word: with `make_room`
+        only where one of them would then join; without, also where the group holds together without it. A member
+        the group falls apart without (split.py) takes the other parts out with it, and leaves only where a map that
+        singled it out would then join: in the held-out maze36_w, map_35, at an alias 20 m from its true place, agreed
+        with three members and contradicted map_30, the one member that held four others to the merge; map_35 joined
+        nowhere, and 5 maps stayed out with map_30."""
+        if not make_room and len(parts_of(self, group, {j})) < 2:
+            return True
+        return self._makes_room(group, {j}, voters)
 
     def _makes_room(self, group: Group, out: Set[int], voters: List[tuple]) -> bool:
         """Whether a map that singled out the members `out` (voters: (grid, where it voted from, metric in the group's
