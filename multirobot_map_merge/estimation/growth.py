@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
-import math
 import time
 from concurrent.futures import Executor
 from typing import Callable, Dict, FrozenSet, Hashable, Iterable, Iterator, List, Optional, Sequence, Set, Tuple
@@ -35,7 +34,7 @@ from .eviction import (contradicted_members, judge_members, members_agreement, p
                        vouched_for)
 from .stronger import FEW_MEMBERS, WEAK_AGREEMENT, PairEvidence, stronger_elsewhere
 from .tracking import MAX_PASSES, Check, least_agreeing, recheck
-from .union import Box, UnionMap, footprint, known_corners, overlap_area
+from .union import Box, UnionMap, footprint, overlap_area
 from .refine import icp
 from .verify import IMPRECISE, Placement, distinct, overlap_found, partly_agreeing, plausible, refusal, verify
 from .workers import MatchCall, ParallelMatcher
@@ -1126,12 +1125,12 @@ class Grower:
         # maze36_w, seed 1: map_08, placed by the growth's search on 0.10 of its area a quarter turn off, was placed
         # there 34 m from it)
         again = self.left_out_matches.get(k) or self.refused.get(k)
-        why = ''
-        if again is not None and again.j == group.seed and places(again, self.s):
-            rot, disp = tf.difference(place, again.transform_m, known_corners(self.grids[k]))
-            if math.degrees(rot) > self.s.distinct_degrees or disp > self.s.distinct_metres:
-                why = f'its search onto the final merge put it {math.degrees(rot):.1f} degrees and {disp:.1f} m away'
-        c = self.passes_onto(self.prepared[k], group.union.prepared(), place) if not why else None
+        part = self.prepared[k]
+        px = tf.inverse(part.px_to_map)   # metric placements as pixels of grid k's own frame (distinct's scale)
+        why = 'its search onto the final merge put it at another place' \
+            if again is not None and again.j == group.seed and places(again, self.s) \
+            and distinct(px @ place @ part.px_to_map, px @ again.transform_m @ part.px_to_map, part, self.s) else ''
+        c = self.passes_onto(part, group.union.prepared(), place) if not why else None
         why = why or ('the merge refuses it at its place' if c is None else '')
         if not why:
             _, contradicting = judge_members(k, place, group.members, group.union.footprints,
