@@ -27,7 +27,7 @@ from ..grid import Grid
 from .features import PreparedGrid, map_keypoints
 from .hypotheses import putative_matches, ransac_rigid
 from .memory import EstimationMemory
-from .pair import AMBIGUOUS, SEARCH_POSTPONED, PairMatch, accepted_at, as_good
+from .pair import AMBIGUOUS, SEARCH_POSTPONED, PairMatch, accepted_at, as_good, find_rival
 from .settings import EstimationSettings
 from .split import parts_of, split
 from .eviction import (contradicted_members, judge_members, members_agreement, places, singled_out_together,
@@ -1139,6 +1139,10 @@ class Grower:
             pooled = self._members_agreement(k, place, group) if not contradicting else 0.0
             why = f'members {contradicting} contradict it' if contradicting else \
                 f'the members there agree {pooled:.3f} with it' if pooled < WEAK_AGREEMENT else ''
+        if not why:
+            rival = find_rival(part, group.union.prepared(), c, self.s)
+            why = f'a search onto the merge finds another place that passes (agreement {rival.agreement:.3f}, ' \
+                  f'support {rival.support}, here {c.support})' if rival is not None else ''
         if why:
             log.debug('grid %d set aside stays out: %s', k, why)
             return False
