@@ -1,8 +1,10 @@
 """Why each mergeable map of a scenario is left out or placed wrong, read from a `merge_maps -v` log and the scorer.
 
 The estimator logs every match it judges as `pair K-S: ..., <reason or accepted>` (K: the grid matched, S: the seed
-of the group whose union it was matched against; a group merge logs the smaller group's seed as K). Replaying the
-accepted lines tells which group each map ended in; a mergeable map the result leaves out is then either alone
+of the group whose union it was matched against; a group merge logs the smaller group's seed as K), and a line of
+its own when a grid does not join by a match that accepted it (NOT_JOINED: it waits, or the end's rules keep it
+out). Replaying the accepted lines it joined by tells which group each map ended in; a mergeable map the result
+leaves out is then either alone
 (its own matches were all refused: the last refusal is its cause) or in a side group that never joined the merge
 (the cause is that group's last refused merge). A map placed wrong is reported with the match that placed it.
 
@@ -20,9 +22,15 @@ from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
 
-PAIR = re.compile(r'pair (\d+)-(\d+): .*?agreement ([0-9.]+), overlap ([0-9.]+) m2, (.*)$')
+# the expected error at the far corners comes before the verdict where the precision was judged ('accepted' included)
+PAIR = re.compile(r'pair (\d+)-(\d+): .*?agreement ([0-9.]+), overlap ([0-9.]+) m2, '
+                  r'(?:expected error at the far corners [0-9.]+ m, )?(.*)$')
+# an accepted match that the grid did not join by (growth.py: it waits for a stronger pair, or the end's rules keep it
+# out); the grid it names is the last matched
+NOT_JOINED = re.compile(r'grid (\d+) (?:onto group \d+ |left out |set aside )((?:waits|stays out)\b.*)$')
 # reason text -> cause label; the first that matches (verify.refusal, pair.match_pair, tracking)
-CAUSES = [('accepted', 'accepted'), ('contradicting walls', 'contradicting walls'), ('imprecise', 'imprecise'),
+CAUSES = [('not joined', 'accepted, not joined'), ('overlap elsewhere', 'the unions overlap elsewhere'),
+          ('accepted', 'accepted'), ('contradicting walls', 'contradicting walls'), ('imprecise', 'imprecise'),
           ('ambiguous', 'ambiguous'), ('confidence', 'confidence'), ('support', 'support'),
           ('overlap', 'overlap too small'), ('agreement', 'agreement'), ('no rigid model', 'no rigid model'),
           ('no placed grid', 'no placed grid near it')]
@@ -55,12 +63,21 @@ def cause_of(reason: str) -> str:
 
 
 def parse_matches(log_text: str) -> List[Match]:
-    out = []
+    """The matches the log judged, in its order; an accepted one that the grid did not join by (a NOT_JOINED line
+    after it, before the grid's next match) gets the reason 'not joined: ' and that line's."""
+    out: List[Match] = []
+    last: Dict[int, int] = {}   # grid -> the index of its last match
     for line in log_text.splitlines():
         m = PAIR.search(line)
         if m:
+            last[int(m.group(1))] = len(out)
             out.append(Match(int(m.group(1)), int(m.group(2)), float(m.group(3)), float(m.group(4)),
                              m.group(5).strip()))
+            continue
+        m = NOT_JOINED.search(line)
+        n = last.get(int(m.group(1))) if m else None
+        if n is not None and out[n].accepted:
+            out[n] = Match(out[n].k, out[n].seed, out[n].agreement, out[n].overlap_m2, f'not joined: {m.group(2)}')
     return out
 
 
@@ -111,7 +128,8 @@ def diagnose(log_text: str, scored: dict, truth: dict) -> List[Verdict]:
             continue
         included = {f.rsplit('/', 1)[-1] for f in placements} | {ref}
         side = [a for a in range(n) if group[a] == group[k] and a != k and files[a] not in included]
-        if side:                    # placed with others, but that group never joined the merge
+        merged = any(group[a] == group[k] and files[a] in included for a in range(n))
+        if side and not merged:     # placed with others, but that group never joined the merge
             merges = [m for m in matches if not m.accepted and m.k in side + [k] and group[m.seed] != group[k]]
             cause = cause_of(merges[-1].reason) if merges else 'never matched'
             verdicts.append(Verdict(k, 'left out', cause,

@@ -44,6 +44,29 @@ def test_each_map_not_placed_right_gets_its_cause():
     assert cause_counts(list(verdicts.values()))['left out: contradicting walls'] == 2
 
 
+def test_the_log_as_merge_maps_writes_it_is_read_with_its_precision_and_the_joins_that_did_not_happen():
+    """merge_maps -v writes the expected error at the far corners before the verdict of a match whose precision was
+    judged ('..., accepted' too), and a line of its own when a grid accepted by a match does not join by it (it waits,
+    or the end's rules keep it out). 1 joined, 2 and 3 a side group refused beside a larger place, 4 accepted and not
+    joined (it shared too little), 5 joined and left again."""
+    precise = 'expected error at the far corners 0.05 m, '
+    text = '\n'.join([
+        log((1, 0, 1.0, 80, precise + 'accepted'), (3, 2, 0.99, 90, precise + 'accepted'),
+            (2, 0, 1.0, 10, precise + 'the unions overlap elsewhere: a place with support 3391 (here 165) agrees '
+                                      '0.74 and contradicts'),
+            (4, 0, 1.0, 20, precise + 'accepted')),
+        'DEBUG grid 4 left out stays out: placed on 0.17 of its area, less than 0.50',
+        log((5, 0, 1.0, 60, precise + 'accepted')),
+        'DEBUG grid 5 leaves group 0: a search onto the final merge without it places it elsewhere',
+        log((5, 0, 0.97, 50, precise + 'agreement 0.97 < 0.98'))])
+    truth, scored = scenario(6, [0, 1, 2, 3, 4, 5], [(1, True)])
+    verdicts = {v.map_index: v for v in diagnose(text, scored, truth)}
+    assert sorted(verdicts) == [2, 3, 4, 5]
+    assert verdicts[2].side_group == [3] and verdicts[2].cause == 'the unions overlap elsewhere'
+    assert verdicts[4].cause == 'accepted, not joined' and 'placed on 0.17 of its area' in verdicts[4].detail
+    assert verdicts[5].cause.startswith('joined, then removed') and verdicts[5].side_group == []
+
+
 def test_maps_placed_right_or_not_mergeable_are_not_reported():
     text = log((1, 0, 0.99, 80, 'accepted'), (2, 0, 0.5, 10, 'agreement 0.50 < 0.91'))
     truth, scored = scenario(3, [0, 1], [(1, True)])

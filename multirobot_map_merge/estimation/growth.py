@@ -975,7 +975,11 @@ class Grower:
             joining = []
             blocked: Dict[int, List[int]] = {}   # grid -> the members it contradicts that it does not outweigh
             for n, m in enumerate(matches):
-                if not m.accepted or not self.shares_enough(m.i, m.best.overlap_m2):
+                if not m.accepted:
+                    continue
+                if not self.shares_enough(m.i, m.best.overlap_m2):
+                    log.debug('grid %d left out stays out: placed on %.2f of its area, less than %.2f', m.i,
+                              self.share_of(m.i, m.best.overlap_m2), LEFT_OUT_SHARE)
                     continue
                 rival = self.still_ambiguous(group, m)
                 if rival is not None:
@@ -991,10 +995,14 @@ class Grower:
                 # a member taken out: vouched for only by members these searches did not place (see above)
                 vouchers = [j for j in agreeing if j not in self.left_out_joined] if m.i in self.evicted else agreeing
                 if not vouched_for(vouchers, m.best, self.s):
+                    log.debug('grid %d left out stays out: only members %s vouch for it (expected error at the far '
+                              'corners %.2f m)', m.i, sorted(vouchers), m.best.corner_error_m)
                     continue
                 if self._outweighs(group, m, agreeing, contradicting):
                     joining.append((m, agreeing, contradicting))
                 else:
+                    log.debug('grid %d left out stays out: it contradicts members %s, agreeing with %s', m.i,
+                              sorted(contradicting), sorted(agreeing))
                     blocked[m.i] = contradicting
             joined_now: Dict[int, np.ndarray] = {}   # the maps that joined in this round, where
             # the strongest first (members agreeing, then agreeing walls; by content, not index, on a tie)
