@@ -59,6 +59,47 @@ def test_a_small_join_beside_a_much_larger_contradicted_overlap_is_refused(monke
     assert pair.match_pair(1, 0, pb, pa, s, onto_union=True, search=False).accepted
 
 
+def lattice_maze(cells_x: int, cells_y: int, wall_share: float, seed: int) -> np.ndarray:
+    """A maze on a lattice of 1 m cells: each side of a cell is a wall with probability `wall_share`, else open."""
+    rng = np.random.default_rng(seed)
+    cell = 20
+    world = np.zeros((cells_y * cell + 1, cells_x * cell + 1), np.int8)
+    world[0, :] = world[-1, :] = world[:, 0] = world[:, -1] = 100
+    for cy in range(cells_y):
+        for cx in range(cells_x):
+            if rng.random() < wall_share:
+                world[cy * cell, cx * cell:(cx + 1) * cell + 1] = 100
+            if rng.random() < wall_share:
+                world[cy * cell:(cy + 1) * cell + 1, cx * cell] = 100
+    return world
+
+
+def test_a_precise_join_beside_a_place_that_fits_only_the_lattice_stands(monkeypatch):
+    """In a maze every place a cell's width along lines up the walls' lattice, and two unions overlap there far more
+    than at the truth, agreeing where both mazes have a wall and contradicting elsewhere (0.74 here): that place is
+    no near miss (pair.NEAR_MISS), and a precise join beside it stands. Were the join less precise than
+    ELSEWHERE_PRECISION of the limit, the place would refuse it, as a place the unions nearly fit refuses any."""
+    world = lattice_maze(30, 8, 0.6, 0)
+    a, b = seen(world, 0, 16 * 20 + 1), seen(world, 14 * 20, 30 * 20 + 1)   # 2 m in common at the truth
+    pa, pb = (prepare(Grid(d, RES), RES, 'akaze') for d in (a, b))
+
+    def px(metric: np.ndarray) -> np.ndarray:
+        return tf.inverse(pa.px_to_map) @ metric @ pb.px_to_map
+    lattice, truth = px(tf.translation(-10 * 20 * RES, 0.0)), px(np.eye(3))   # 10 cells off: 12 m in common
+    monkeypatch.setattr(pair, 'hypotheses', lambda p, q, s, rng: [lattice.copy(), truth.copy()])
+    monkeypatch.setattr(pair, 'correlate_candidates', lambda *args, **kwargs: [])
+    s = EstimationSettings()
+    m = pair.match_pair(1, 0, pb, pa, s, onto_union=True, between_groups=True)
+    at_lattice = next(c for c in m.alternatives if np.allclose(c.transform[:2, 2], lattice[:2, 2], atol=3))
+    assert 0.6 <= at_lattice.agreement < pair.NEAR_MISS['min_agreement']
+    assert at_lattice.support >= pair.ELSEWHERE_SUPPORT * m.best.support
+    assert m.best.corner_error_m <= pair.ELSEWHERE_PRECISION * s.max_corner_error_m
+    assert m.accepted and np.allclose(m.transform_m[:2, 2], (0.0, 0.0), atol=0.1)
+    monkeypatch.setattr(pair, 'ELSEWHERE_PRECISION', 0.0)
+    m = pair.match_pair(1, 0, pb, pa, s, onto_union=True, between_groups=True)
+    assert not m.accepted and m.reason.startswith('the unions overlap elsewhere')
+
+
 def test_two_groups_that_meet_by_one_member_join_as_that_member_would_alone(repo_root, monkeypatch):
     """test/data/classic_bridge: the side group of 12 maps meets the rest of classic36 by the 15.6 m2 it shares with
     map_21. Their unions placed at the truth pass every rule but precision when the side group's union has no wall

@@ -47,6 +47,11 @@ SEARCH_POSTPONED = 'search postponed: the search budget of this estimation is sp
 # of 9 seeds, 8-10 maps each, half a turn or 28-53 m off), and in one seed a maze's groups joined a quarter turn off;
 # refused, no group joins wrong there, and 12-17 of hospital36's 27 maps are placed
 ELSEWHERE_SUPPORT = 4.0
+# but only where the unions nearly fit at that place (NEAR_MISS's agreement), or the join is less precise than this
+# share of max_corner_error_m: in a maze the walls' lattice lines up a cell's width along at 0.61-0.74 agreement, which
+# says nothing of where two groups meet (the held-out maze36_v: a side group of six joined at 0.09-0.14 m expected at
+# the far corners, right), while joins there 0.21-0.22 m uncertain were 0.10-0.27 m off (maze36_u, seeds 1 and 2)
+ELSEWHERE_PRECISION = 0.6
 AMBIGUOUS = 'ambiguous'   # the start of the reason of a match refused beside another place as good
 NEAR_MISS = dict(min_agreement=0.8, max_deep_conflicts=0.05)   # rules a best candidate passes to be polished
 
@@ -377,7 +382,9 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
         # two unions that overlap far more elsewhere, where they contradict: a small join beside it is a guess
         elsewhere = max((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s)
                          and overlap_found(c, s, onto_union)), key=lambda c: c.support, default=None)
-        if elsewhere is not None and elsewhere.support >= ELSEWHERE_SUPPORT * best.support:
+        if elsewhere is not None and elsewhere.support >= ELSEWHERE_SUPPORT * best.support \
+                and (elsewhere.agreement >= NEAR_MISS['min_agreement']
+                     or best.corner_error_m > ELSEWHERE_PRECISION * s.max_corner_error_m):
             later = (f'the unions overlap elsewhere: a place with support {elsewhere.support} (here '
                      f'{best.support}) agrees {elsewhere.agreement:.2f} and contradicts')
     if not later and result.confidence < s.confidence:
