@@ -154,3 +154,24 @@ def test_two_groups_that_meet_by_one_member_join_as_that_member_would_alone(repo
         m, i=small.seed, j=larger.seed, transform_m=tf.inverse(m.transform_m)))
     groups = grower.merge_groups([big, side], [])
     assert len(groups) == 1 and len(groups[0].members) == len(names)
+
+
+def test_a_place_the_unions_nearly_fit_refuses_a_join_though_a_larger_one_fits_only_the_lattice():
+    """pair.overlap_elsewhere asks every distinct place with ELSEWHERE_SUPPORT times the join's support: a place the
+    unions nearly fit (NEAR_MISS) refuses a precise join even where a larger place, lining up only a maze's lattice,
+    would not; the largest alone decided before."""
+    s = EstimationSettings()
+    pi = prepare(Grid(seen(lattice_maze(10, 5, 0.6, 1), 0, 201), RES), RES, 'akaze')
+
+    def at(x_px: float, support: int, agreement: float, corner_error_m: float = 0.0) -> pair.Placement:
+        return pair.Placement(tf.translation(x_px, 0.0), support=support, agreement=agreement, overlap_m2=20.0,
+                              corner_error_m=corner_error_m)
+    join = at(0, 100, 1.0, 0.05)
+    lattice, near_miss = at(200, 1000, 0.7), at(400, 500, 0.85)
+    assert pair.overlap_elsewhere(join, [lattice, near_miss], pi, s, onto_union=True) is near_miss
+    assert pair.overlap_elsewhere(join, [lattice], pi, s, onto_union=True) is None
+    # a near miss with less than ELSEWHERE_SUPPORT times the join's support says nothing
+    assert pair.overlap_elsewhere(join, [lattice, at(400, 300, 0.85)], pi, s, onto_union=True) is None
+    # an imprecise join is refused beside the largest place, near miss or not
+    loose = at(0, 100, 1.0, 0.2)
+    assert pair.overlap_elsewhere(loose, [lattice], pi, s, onto_union=True) is lattice

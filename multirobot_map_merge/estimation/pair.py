@@ -153,6 +153,23 @@ def find_rival(pi: PreparedGrid, pj: PreparedGrid, best: Placement, s: Estimatio
     return None
 
 
+def overlap_elsewhere(best: Placement, others: List[Placement], pi: PreparedGrid, s: EstimationSettings,
+                      onto_union: bool = False) -> Optional[Placement]:
+    """A distinct place among `others` where two unions overlap with ELSEWHERE_SUPPORT times the support of `best`
+    and contradict (overlap_found), and which makes a join at `best` a guess: the unions nearly fit there (NEAR_MISS's
+    agreement), or `best` is less precise than ELSEWHERE_PRECISION of max_corner_error_m; None if there is none.
+
+    Every such place is asked, the near misses first: the largest may only line up a maze's lattice of walls while a
+    smaller one, still several times the join's, nearly fits."""
+    larger = [c for c in others if c.support >= ELSEWHERE_SUPPORT * best.support
+              and distinct(c.transform, best.transform, pi, s) and overlap_found(c, s, onto_union)]
+    near = max((c for c in larger if c.agreement >= NEAR_MISS['min_agreement']), key=lambda c: c.support,
+               default=None)
+    if near is not None or best.corner_error_m <= ELSEWHERE_PRECISION * s.max_corner_error_m:
+        return near
+    return max(larger, key=lambda c: c.support, default=None)
+
+
 def as_good(c: Placement, best: Placement, s: EstimationSettings) -> bool:
     """Whether placement c agrees almost as well as `best` (ambiguity_ratio): it agrees at least as well over almost
     as large a common area, or it scores almost as well, or, when the best scores zero or less, it has almost as
@@ -380,11 +397,8 @@ def match_pair(i: int, j: int, pi: PreparedGrid, pj: PreparedGrid, s: Estimation
                  f'{best.support}')
     if not later and between_groups:
         # two unions that overlap far more elsewhere, where they contradict: a small join beside it is a guess
-        elsewhere = max((c for c in candidates[1:] if distinct(c.transform, best.transform, pi, s)
-                         and overlap_found(c, s, onto_union)), key=lambda c: c.support, default=None)
-        if elsewhere is not None and elsewhere.support >= ELSEWHERE_SUPPORT * best.support \
-                and (elsewhere.agreement >= NEAR_MISS['min_agreement']
-                     or best.corner_error_m > ELSEWHERE_PRECISION * s.max_corner_error_m):
+        elsewhere = overlap_elsewhere(best, candidates[1:], pi, s, onto_union)
+        if elsewhere is not None:
             later = (f'the unions overlap elsewhere: a place with support {elsewhere.support} (here '
                      f'{best.support}) agrees {elsewhere.agreement:.2f} and contradicts')
     if not later and result.confidence < s.confidence:
