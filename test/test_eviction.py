@@ -361,6 +361,27 @@ def test_a_map_whose_last_search_found_no_place_is_searched_again_once_a_member_
     assert sorted(grower._left_out_todo(group)) == [3, 5]
 
 
+def test_a_map_whose_search_at_the_end_found_no_place_is_searched_again_once_a_member_left_though_no_match_found_it():
+    """_left_out_todo: a map whose matches never found where it overlaps the merge, and which the growth never
+    searched onto it (its seed left, the merge has another), is searched again once a member has left if its last
+    search at the end found no place. Held-out pillar_hall36_w: maps 00, 15 and 27 found no place on the merge that
+    broken map_33 seeded, under its turned part; once it had left they waited for a search onto the new seed's merge
+    that never came."""
+    world = stubbed_building()
+    grids = [seen(world, 0, 170), seen(world, 40, 200), seen(world, 0, 120), seen(world, 130, 300),
+             seen(world, 200, 300), seen(world, 150, 300)]
+    grower, group = _merge_of(grids, [0, 1, 2])
+    grower.found = {}
+    grower.left_out_members = frozenset(group.members)
+    grower.left_out_footprints = dict(group.union.footprints)
+    # 3: no place found at the end; 4: placed away from member 1; 5: never searched at the end
+    grower.left_out_boxes = {3: None, 4: (100.0, 100.0, 101.0, 101.0)}
+    assert grower._left_out_todo(group) == []
+    group.leave(1)
+    grower.evicted.add(1)
+    assert grower._left_out_todo(group) == [3]
+
+
 def test_a_map_refused_at_the_end_is_searched_again_once_maps_have_joined_where_it_lies():
     """search_left_out(refused=True), after a side group joined the merge: a map that the end's search refused (it
     found no place: the merge did not reach where the map lies) is searched again once the merge has members its
