@@ -6,9 +6,10 @@
 For each two-map scenario it places map 0 on map 1 at the true placement and prints:
 - truth: agreeing wall cells, agreement, contradictions well inside both views, expected corner error
   (precision.py) - what the acceptance rules see at the right answer;
-- best fit: the placement near the truth or near the pipeline's best (within 3 degrees, 12 cells) that agrees with the most walls, by a
-  smoothed count (walls near walls, less walls well inside the other's open floor), and its distance from the truth:
-  if the maps fit better some cells away, no method that goes by the maps can be right to the eval's 3 cells;
+- best fit: the placement near the truth or near the pipeline's best (within 3 degrees, 12 cells) that agrees with
+  the most walls, by a smoothed count (walls near walls, less walls well inside the other's open floor), and its
+  distance from the truth: if the maps fit better some cells away, no method that goes by the maps can be right to
+  the eval's 3 cells;
 - rival: another place, distinct from the truth, that passes the acceptance rules relaxed to the truth's own level
   (matching.find_rival): then the maps fit two places equally;
 - the pipeline's verdict on the pair.

@@ -177,7 +177,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                 for p in result.pairs:
                     if p.i == k:
                         print(f'      {why}: {"placed" if p.accepted else "refused"} against {rec.names[p.j]}'
-                              f' ({p.inliers} inliers, confidence {p.confidence:.2f}){": " + p.reason if p.reason else ""}')
+                              f' ({p.inliers} inliers, confidence {p.confidence:.2f})'
+                              f'{": " + p.reason if p.reason else ""}')
     except (OSError, ValueError, KeyError) as e:
         print(f'replay_estimations: cannot read the record {args.record}: {e}', file=sys.stderr)
         return 2

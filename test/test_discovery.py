@@ -71,7 +71,8 @@ def test_params_read_types():
 
 
 def test_param_table_lists_every_parameter_from_the_dataclass():
-    """scripts/param_table.py (the table in doc/map_merge.md) and the node docstring come from MapMergeParams' fields."""
+    """scripts/param_table.py (the table in doc/map_merge.md) and the node docstring come from MapMergeParams'
+    fields."""
     import dataclasses
     import importlib.util
     from pathlib import Path

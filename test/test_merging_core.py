@@ -267,7 +267,8 @@ def test_merge_maps_cli_seed_gives_the_same_merge_every_time(repo_root, tmp_path
 
 @pytest.mark.parametrize('cores, expected', [({0}, 1), ({0, 1, 2}, 3), (set(range(16)), cli.MAX_DEFAULT_THREADS)])
 def test_merge_maps_matches_on_the_cores_it_may_use_by_default(monkeypatch, cores, expected):
-    """--threads defaults to the CPU affinity's cores (a container's or taskset's share), at most MAX_DEFAULT_THREADS."""
+    """--threads defaults to the CPU affinity's cores (a container's or taskset's share), at most
+    MAX_DEFAULT_THREADS."""
     monkeypatch.setattr(cli.os, 'sched_getaffinity', lambda pid: cores, raising=False)
     assert cli.parse_args(['m.yaml']).threads == expected
     assert cli.parse_args(['--threads', '2', 'm.yaml']).threads == 2

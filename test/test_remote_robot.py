@@ -97,7 +97,8 @@ def test_robot_on_another_host_survives_a_link_outage(tmp_path):
                                            '_origin_mode:=world'])
         spawn(robot, robot_ip, 'robot', [sys.executable, str(HELPER), 'robot', '--t0', str(t0)])
         checker = spawn(core, core_ip, 'checker', [sys.executable, str(HELPER), 'check', '--t0', str(t0),
-                                                   '--link', core_dev, '--outage', str(OUTAGE), '--within', str(WITHIN)])
+                                                   '--link', core_dev, '--outage', str(OUTAGE),
+                                                   '--within', str(WITHIN)])
         try:
             code = checker.wait(timeout=90.0 + OUTAGE + WITHIN + 30.0)
         except subprocess.TimeoutExpired:

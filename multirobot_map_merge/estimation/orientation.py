@@ -103,7 +103,8 @@ def _orientation(length: np.ndarray, angle: np.ndarray) -> Optional[Orientation]
     deviation = _offset(angle, mean)
     spread = math.sqrt(float((length * deviation ** 2).sum() / length.sum()))
     sigma = max(spread / math.sqrt(n_effective), math.radians(MIN_SIGMA_DEGREES))
-    if n_effective < MIN_SEGMENTS or spread > math.radians(MAX_SPREAD_DEGREES) or sigma > math.radians(MAX_SIGMA_DEGREES):
+    if n_effective < MIN_SEGMENTS or spread > math.radians(MAX_SPREAD_DEGREES) \
+            or sigma > math.radians(MAX_SIGMA_DEGREES):
         return None
     return Orientation(mean, sigma)
 

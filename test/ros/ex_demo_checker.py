@@ -2,12 +2,12 @@
 """rostest checker for the live demo (launch/demo.launch in a short configuration).
 
 test_merge_matches_ground_truth: map_merge's latched status places all ~num_robots robots (unknown initial poses)
-    and, when the demo has ended, each placement, relative to the first robot, is within ~max_rotation_deg and ~max_corner_m of the
-    simulator's ground truth (largest displacement of the corners of the robot map's known area). With
-    ~judge_by_data (robots whose SLAM drifts: their start pose is not where their walls fit best), a robot off by
-    those bounds passes when it is right by the data, as the demo's summary and ../shared/eval's score_real judge:
-    within 1 degree and 0.5 m of the truth, its walls fitting the other placed maps at least 0.95 as well as at the
-    true poses (explore.coverage.right_by_the_data).
+    and, when the demo has ended, each placement, relative to the first robot, is within ~max_rotation_deg and
+    ~max_corner_m of the simulator's ground truth (largest displacement of the corners of the robot map's known
+    area). With ~judge_by_data (robots whose SLAM drifts: their start pose is not where their walls fit best), a
+    robot off by those bounds passes when it is right by the data, as the demo's summary and ../shared/eval's
+    score_real judge: within 1 degree and 0.5 m of the truth, its walls fitting the other placed maps at least 0.95
+    as well as at the true poses (explore.coverage.right_by_the_data).
 test_demo_writes_merged_map: the demo supervisor ends (every explorer stopped, or its limit) and writes
     ~out/summary.json and the merged map ~out/merged.yaml (+ .pgm, .png); placed in the ground-truth world through
     map_merge's placement, the written map covers at least ~min_merged_share of the reachable area; the summary's
