@@ -878,8 +878,8 @@ class Grower:
             saw_gone = any(members & gone for members in found) \
                 or (box is None and bool(gone)) \
                 or (box is not False and any(overlap_area(box, self.left_out_footprints.get(j)) > 0.0 for j in gone))
-            if not any(members - self.evicted <= group.members.keys() for members in found) \
-                    and self._searched_since(k, group, names) is not False and not saw_gone:
+            if not saw_gone and not any(members - self.evicted <= group.members.keys() for members in found) \
+                    and self._searched_since(k, group, names) is not False:
                 # no match found where it overlaps the merge: the growth searched it (_search), unless the merge
                 # has changed much since its last search there (a member gone, grown by SEARCH_GROWTH: after an
                 # eviction the maps the broken member kept out join, and a small map beside them searched before
