@@ -695,6 +695,32 @@ def test_a_member_a_search_placed_on_little_of_its_map_is_set_aside_for_the_end_
         assert degrees < 0.01 and metres < 0.01
 
 
+@pytest.mark.parametrize('budget_s', [0.0, math.inf])
+def test_a_member_set_aside_waits_for_a_later_estimation_once_the_search_budget_is_spent(repo_root, budget_s):
+    """readmit_weak's search for another place of a member set aside counts against the search budget like every
+    other search: with the budget spent, robot 2 (joined by a search on 0.2 of its area, at the truth) is not searched
+    and so not taken back unsearched; it stays out and the search counts as postponed (a later estimation, with a
+    larger budget, makes it). With budget to spare it joins again, and the search's time is counted."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    grower = _grower_of(grids, EstimationSettings(search_budget_s=budget_s))
+    group = grower.group(0)
+    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])
+    area = grower.prepared[2].known_pixels * grower.prepared[2].resolution ** 2
+    m = PairMatch(2, 0, accepted=True, searched=True,
+                  best=Placement(np.eye(3), support=300, agreement=1.0, overlap_m2=0.2 * area))
+    m.transform_m = tf.inverse(poses[0]) @ poses[2]
+    grower._join(group, m)
+    grower.searched.add(2)
+    weak = grower.set_aside_weak(group)
+    assert 2 in weak
+    joined = grower.readmit_weak(group, weak)
+    spent = budget_s == 0.0
+    assert (joined == []) == spent and (2 in group.members) != spent and grower.postponed == int(spent)
+    assert (grower.search_seconds > 0.0) != spent
+
+
 def test_a_place_an_earlier_match_found_as_good_keeps_a_later_placement_ambiguous(repo_root):
     """test/data/office_alias (rooms every 8.5 m along a corridor): a 6 m band of the robot's map fits the union of 26
     maps at several places along the corridor, and its search is refused as ambiguous. Accepted at its best place

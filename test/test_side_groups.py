@@ -3,7 +3,7 @@ took it apart, join together where the end's search placed one of them, when sev
 import numpy as np
 
 from multirobot_map_merge import transforms as tf
-from multirobot_map_merge.estimation import eviction, side_groups
+from multirobot_map_merge.estimation import eviction, growth, side_groups
 from multirobot_map_merge.estimation.side_groups import remember, search_side_groups
 from multirobot_map_merge.estimation.union import footprint
 from test_eviction import _merge_of, seen, stubbed_building
@@ -68,7 +68,12 @@ def test_a_side_group_that_fits_as_well_one_room_along_stays_out(monkeypatch):
     m.transform_m = np.eye(3)
     grower.left_out_matches[3] = m
     assert search_side_groups(grower, group) == 0
-    monkeypatch.setattr(side_groups, 'find_rival', lambda *args, **kwargs: None)
+    monkeypatch.setattr(growth, 'find_rival', lambda *args, **kwargs: None)
+    # that search counts against the search budget: with the budget spent the group waits for a later estimation
+    budget = grower.s
+    grower.s = budget.replace(search_budget_s=0.0)
+    assert search_side_groups(grower, group) == 0 and grower.postponed > 0
+    grower.s = budget
     assert search_side_groups(grower, group) == 2
 
 

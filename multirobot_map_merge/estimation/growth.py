@@ -1109,7 +1109,9 @@ class Grower:
         """The members set_aside_weak took out join the merge `group` again at their places (by the member each was
         paired with, once that one is a member again) where the merge passes them there by the rules of a pair onto a
         union, no member near them contradicts them and those members, one by one, agree with them wall for wall
-        (WEAK_AGREEMENT), as the growth asked of them; the others stay out. Returns those that joined again."""
+        (WEAK_AGREEMENT), as the growth asked of them, and a search onto the merge finds no other place that passes
+        (pair.find_rival: it counts against the search budget, and with the budget spent the member waits for a later
+        estimation, counted as postponed); the others stay out. Returns those that joined again."""
         back: List[int] = []
         # by content, not index: each that joins changes the merge the next is judged on
         waiting = dict(sorted(weak.items(), key=lambda kv: self.prepared[kv[0]].draw_key))
@@ -1151,15 +1153,30 @@ class Grower:
             why = f'members {contradicting} contradict it' if contradicting else \
                 f'the members there agree {pooled:.3f} with it' if pooled < WEAK_AGREEMENT else ''
         if not why:
-            rival = find_rival(part, group.union.prepared(), c, self.s)
-            why = f'a search onto the merge finds another place that passes (agreement {rival.agreement:.3f}, ' \
-                  f'support {rival.support}, here {c.support})' if rival is not None else ''
+            searched, rival = self.rival_of(part, group.union.prepared(), c)
+            why = 'the search budget is spent: its search for another place waits for a later estimation' \
+                if not searched else \
+                f'a search onto the merge finds another place that passes (agreement {rival.agreement:.3f}, ' \
+                f'support {rival.support}, here {c.support})' if rival is not None else ''
         if why:
             log.debug('grid %d set aside stays out: %s', k, why)
             return False
         self.evicted.discard(k)
         self._join(group, accepted_at(k, group.seed, c, place))
         return True
+
+    def rival_of(self, part: PreparedGrid, union: PreparedGrid, c: Placement,
+                 enough: Optional[Callable[[Placement], bool]] = None) -> Tuple[bool, Optional[Placement]]:
+        """(searched, rival): pair.find_rival of `part` onto `union` away from its placement c, its time counted
+        against the search budget; not made once the budget is spent (searched False, counted as postponed). The
+        placement it guards then waits for a later estimation: taken unsearched, it could be at an alias."""
+        if self._spent():
+            self.postponed += 1
+            return False, None
+        started = time.perf_counter()
+        rival = find_rival(part, union, c, self.s, enough=enough)
+        self.search_seconds += time.perf_counter() - started
+        return True, rival
 
     def still_ambiguous(self, group: Group, m: PairMatch) -> Optional[Placement]:
         """A place of grid m.i on the merge `group`, distinct from where the accepted match m puts it, that an earlier

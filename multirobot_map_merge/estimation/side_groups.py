@@ -10,22 +10,21 @@ is. The join of that union that the growth refused was refused beside the alias 
 overlap elsewhere, far more, and contradict: pair.match_pair's between_groups), a rule for two groups that may each
 hold a broken map; the search of the union onto the final merge found that alias or the truth by its random draws.
 
-So the members of such a group that are still left out at the end are placed together, as the union they made
-(their placements in it as the group had them), where the end's search of one of them placed that member
+So the members of such a group that are still left out at the end are placed together, as the union they made (their
+placements in it as the group had them), where the end's search of one of them placed that member
 (growth.search_left_out: it passed the rules of a pair, short of the share, or every rule but precision: the held-out
-school36_v's group of 11 joined with its member's place 0.24 m uncertain at the far corners and stayed out at 0.28 m,
-as the maps' order and the draws had it; the union, with all its walls, is judged there with the precision rule
-too), or else where a match of the union onto the merge by the growth's rules places it (Grower.match_groups_now:
-the growth took the group apart while the merge was another, a broken member still in it; the held-out courtyard36_v
-in the given order, maps 01 and 12, whose end searches placed neither). They join there when the union passes the
-rules of a pair onto the merge, at least MEETING of them each agree with MIN_AGREEING members of the merge (or with
-one, where the union's placement is precise: eviction.vouched_for) and contradict none (eviction.judge_members), more
-than the members the merge contradicts, and a search of the union finds no place as good elsewhere (pair.find_rival,
-pair.as_good). A broken map placed by one fitting part meets the merge by that part alone; a group meets it by
-several maps that agree. In hospital36 the seven members of the chain meet the merge where the end's search put one
-of them (seeds 0-2 of the random sampling); without the ICP refinement of the union there, one of them (map_25)
-contradicted a member by their thin common walls (19 m2).
-"""
+school36_v's group of 11 joined with its member's place 0.24 m uncertain at the far corners and stayed out at 0.28 m, as
+the maps' order and the draws had it; the union, with all its walls, is judged there with the precision rule too), or
+else where a match of the union onto the merge by the growth's rules places it (Grower.match_groups_now: the growth took
+the group apart while the merge was another, a broken member still in it; the held-out courtyard36_v in the given order,
+maps 01 and 12, whose end searches placed neither). They join there when the union passes the rules of a pair onto the
+merge, at least MEETING of them each agree with MIN_AGREEING members of the merge (or with one, where the union's
+placement is precise: eviction.vouched_for) and contradict none (eviction.judge_members), more than the members the
+merge contradicts, and a search of the union finds no place as good elsewhere (pair.find_rival, pair.as_good; it counts
+against the search budget, and with the budget spent the group waits for a later estimation). A broken map placed by one
+fitting part meets the merge by that part alone; a group meets it by several maps that agree. In hospital36 the seven
+members of the chain meet the merge where the end's search put one of them (seeds 0-2 of the random sampling); without
+the ICP refinement of the union there, one of them (map_25) contradicted a member by their thin common walls (19 m2)."""
 from __future__ import annotations
 
 import logging
@@ -35,7 +34,7 @@ import numpy as np
 
 from .. import transforms as tf
 from .eviction import judge_members, vouched_for
-from .pair import PairMatch, accepted_at, as_good, find_rival
+from .pair import PairMatch, accepted_at, as_good
 from .refine import icp
 from .union import footprint
 from .verify import Placement, pair_confidence, same_place
@@ -87,7 +86,11 @@ def _placed(grower, group, them) -> Optional[PairMatch]:
         meeting, contradicted = _meeting(grower, group, them, place, c)
         if len(meeting) < MEETING or len(meeting) <= len(contradicted):
             continue
-        rival = find_rival(part, union, c, s, enough=lambda r: as_good(r, c, s))
+        searched, rival = grower.rival_of(part, union, c, enough=lambda r: as_good(r, c, s))
+        if not searched:
+            log.debug('side group %s waits for a later estimation: the search budget is spent before the search '
+                      'for a place as good elsewhere', sorted(them.members))
+            return None
         log.debug('side group %s %s: the union placed where %s put it (agreement %.2f, support %d), members %s each '
                   'agreeing with members of the merge%s', sorted(them.members),
                   'stays out' if rival is not None else 'joins the merge', where, c.agreement, c.support, meeting,
