@@ -655,6 +655,25 @@ def test_a_search_placement_the_final_merge_contradicts_leaves_it(repo_root, shi
         assert set(group.members) == {0, 1, 2}, grower.refused.get(2)
 
 
+def _joined_by_a_search(repo_root, s, share, shift_m=0.0):
+    """Sample three_robots: robots 0 and 1 placed by their truth, robot 2 joined by a search on `share` of its known
+    area (at the truth, or slid by shift_m), then the members a search placed on little of their maps set aside:
+    (grower, group, set aside, poses, robot 2's match)."""
+    from multirobot_map_merge.estimation.pair import PairMatch
+    from multirobot_map_merge.estimation.verify import Placement
+    grids, poses = _sample(repo_root, 'three_robots')
+    grower = _grower_of(grids, s)
+    group = grower.group(0)
+    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])
+    area = grower.prepared[2].known_pixels * grower.prepared[2].resolution ** 2
+    m = PairMatch(2, 0, accepted=True, searched=True,
+                  best=Placement(np.eye(3), support=300, agreement=1.0, overlap_m2=share * area))
+    m.transform_m = tf.rigid(shift_m, -shift_m, 0.0) @ tf.inverse(poses[0]) @ poses[2]
+    grower._join(group, m)
+    grower.searched.add(2)
+    return grower, group, grower.set_aside_weak(group), poses, m
+
+
 @pytest.mark.parametrize('share, shift_m, found_m, set_aside, back', [
     (0.2, 0.0, 0.0, True, True), (0.2, 0.4, 0.4, True, False), (0.6, 0.4, 0.4, False, False),
     (0.2, 0.0, None, True, True), (0.2, 0.0, 3.0, True, False)])
@@ -666,19 +685,7 @@ def test_a_member_a_search_placed_on_little_of_its_map_is_set_aside_for_the_end_
     map_08, placed by the growth's search on 0.10 of its area a quarter turn off, was put 34 m from there), the merge
     passes it there and the members agree with it wall for wall (the slid one stays out); on more, it stays."""
     from multirobot_map_merge.estimation.pair import PairMatch
-    from multirobot_map_merge.estimation.verify import Placement
-    grids, poses = _sample(repo_root, 'three_robots')
-    s = EstimationSettings()
-    grower = _grower_of(grids, s)
-    group = grower.group(0)
-    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])
-    area = grower.prepared[2].known_pixels * grower.prepared[2].resolution ** 2
-    m = PairMatch(2, 0, accepted=True, searched=True,
-                  best=Placement(np.eye(3), support=300, agreement=1.0, overlap_m2=share * area))
-    m.transform_m = tf.rigid(shift_m, -shift_m, 0.0) @ tf.inverse(poses[0]) @ poses[2]
-    grower._join(group, m)
-    grower.searched.add(2)
-    weak = grower.set_aside_weak(group)
+    grower, group, weak, poses, m = _joined_by_a_search(repo_root, EstimationSettings(), share, shift_m)
     assert (2 not in group.members) == set_aside and (2 in grower.evicted) == set_aside
     if not set_aside:
         assert weak == {}
@@ -701,19 +708,7 @@ def test_a_member_set_aside_waits_for_a_later_estimation_once_the_search_budget_
     other search: with the budget spent, robot 2 (joined by a search on 0.2 of its area, at the truth) is not searched
     and so not taken back unsearched; it stays out and the search counts as postponed (a later estimation, with a
     larger budget, makes it). With budget to spare it joins again, and the search's time is counted."""
-    from multirobot_map_merge.estimation.pair import PairMatch
-    from multirobot_map_merge.estimation.verify import Placement
-    grids, poses = _sample(repo_root, 'three_robots')
-    grower = _grower_of(grids, EstimationSettings(search_budget_s=budget_s))
-    group = grower.group(0)
-    group.union.add(1, grids[1], grower.prepared[1], tf.inverse(poses[0]) @ poses[1])
-    area = grower.prepared[2].known_pixels * grower.prepared[2].resolution ** 2
-    m = PairMatch(2, 0, accepted=True, searched=True,
-                  best=Placement(np.eye(3), support=300, agreement=1.0, overlap_m2=0.2 * area))
-    m.transform_m = tf.inverse(poses[0]) @ poses[2]
-    grower._join(group, m)
-    grower.searched.add(2)
-    weak = grower.set_aside_weak(group)
+    grower, group, weak, _, _ = _joined_by_a_search(repo_root, EstimationSettings(search_budget_s=budget_s), 0.2)
     assert 2 in weak
     joined = grower.readmit_weak(group, weak)
     spent = budget_s == 0.0
