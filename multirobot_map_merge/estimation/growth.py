@@ -1154,10 +1154,11 @@ class Grower:
                 f'the members there agree {pooled:.3f} with it' if pooled < WEAK_AGREEMENT else ''
         if not why:
             searched, rival = self.rival_of(part, group.union.prepared(), c)
-            why = 'the search budget is spent: its search for another place waits for a later estimation' \
-                if not searched else \
-                f'a search onto the merge finds another place that passes (agreement {rival.agreement:.3f}, ' \
-                f'support {rival.support}, here {c.support})' if rival is not None else ''
+            if not searched:
+                why = 'the search budget is spent: its search for another place waits for a later estimation'
+            elif rival is not None:
+                why = (f'a search onto the merge finds another place that passes (agreement {rival.agreement:.3f}, '
+                       f'support {rival.support}, here {c.support})')
         if why:
             log.debug('grid %d set aside stays out: %s', k, why)
             return False
